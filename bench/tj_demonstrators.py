@@ -77,7 +77,10 @@ def main() -> None:
     key = jax.random.key(args.seed)
     result: dict[str, object] = {"p_arrive": args.p_arrive, "episodes": args.episodes}
     compile_s = run_s = 0.0
-    for name, policy in (("always_gas", always_gas), ("yield_before_junction", yield_before_junction)):
+    for name, policy in (
+        ("always_gas", always_gas),
+        ("yield_before_junction", yield_before_junction),
+    ):
         t0 = time.perf_counter()
         compiled = make_eval(env, policy, args.episodes).lower(key, params).compile()
         t1 = time.perf_counter()

@@ -34,8 +34,13 @@ DIR_X = (-1, 1, 0, 0)
 DIR_Y = (0, 0, 1, -1)
 
 _INF = jnp.iinfo(jnp.int32).max
-#: Order keys combine (free time - now) and the unit id; ids stay below PAD_ID_BASE*2.
-_ORDER_ID_BITS = 13
+#: Selections are single min-reductions over packed int32 keys (value << bits | index), which
+#: XLA's CPU backend vectorises far better than argmin's variadic reduce. Slots fit in 9 bits.
+SLOT_BITS = 9
+SLOT_MASK = (1 << SLOT_BITS) - 1
+#: SparCraft's unit order packed as (free time - now) << 9 | slot. Free times of living units lie
+#: within 34 frames of now for every supported unit (cooldown + move penalty), so 6 bits suffice.
+ORDER_BITS = 6 + SLOT_BITS
 
 
 def num_actions(num_slots: int) -> int:
@@ -101,10 +106,17 @@ def player_minimum_free_time(state: GameState) -> jnp.ndarray:
 
 
 def order_keys(state: GameState, alive: jnp.ndarray, t: jnp.ndarray) -> jnp.ndarray:
-    """SparCraft's unit order (alive first, then free time, then id) as one int32 key."""
-    rel = jnp.clip(free_time(state) - t, 0, (1 << (30 - _ORDER_ID_BITS)) - 1)
-    key = (rel << _ORDER_ID_BITS) + state.uid
-    return jnp.where(alive, key, _INF)
+    """SparCraft's unit order (alive first, then free time, then id) as one int32 key per unit;
+    within a player, slot order is id order. Dead units get INT_MAX."""
+    rel = jnp.clip(free_time(state) - t, 0, (1 << (ORDER_BITS - SLOT_BITS)) - 1)
+    slot = jnp.arange(state.hp.shape[-1], dtype=jnp.int32)
+    return jnp.where(alive, (rel << SLOT_BITS) | slot, _INF)
+
+
+def first_in_order(mask: jnp.ndarray, order: jnp.ndarray) -> tuple[jnp.ndarray, jnp.ndarray]:
+    """(slot, found) of the candidate (mask [..., M]) that comes first in ``order`` ([M])."""
+    k = jnp.min(jnp.where(mask, order, _INF), axis=-1)
+    return (k & SLOT_MASK).astype(jnp.int32), k < _INF
 
 
 def turn_context(state: GameState, rules: Rules) -> TurnContext:
@@ -171,11 +183,9 @@ def first_legal_action(ctx: TurnContext, p: int) -> jnp.ndarray:
     the first attack in enemy order, else RELOAD, else the first walkable move, else PASS."""
     q = 1 - p
     attacks = ctx.in_range[p] & ctx.can_attack_now[p][:, None]
-    enemy_order = jnp.where(attacks, ctx.order[q][None, :], _INF)
-    first_target = jnp.argmin(enemy_order, axis=1).astype(jnp.int32)
-    any_attack = attacks.any(axis=1)
+    first_target, any_attack = first_in_order(attacks, ctx.order[q][None, :])
     moves = ctx.move_ok[p]
-    first_move = jnp.argmax(moves, axis=1).astype(jnp.int32) + MOVE_ACTIONS[0]
+    first_move = jnp.min(jnp.where(moves, jnp.arange(4, dtype=jnp.int32), 4), axis=1) + MOVE_ACTIONS[0]
     return jnp.where(
         any_attack,
         ATTACK_BASE + first_target,

@@ -26,8 +26,12 @@ from hybridmarl.engine.rules import (
     DIR_X,
     DIR_Y,
     MOVE_ACTIONS,
+    ORDER_BITS,
     RELOAD_ACTION,
+    SLOT_BITS,
+    SLOT_MASK,
     TurnContext,
+    first_in_order,
     first_legal_action,
     legal_actions,
 )
@@ -37,19 +41,22 @@ Script = Callable[[jax.Array, GameState, TurnContext, int], jax.Array]
 
 _BIG = jnp.iinfo(jnp.int32).max
 _CLOSEST_LIMIT = 1_000_000
-
-
-def _pick_first_in_order(tie: jax.Array, order: jax.Array) -> jax.Array:
-    """Index of the candidate (mask [U, M]) that comes first in ``order`` ([M], smaller first)."""
-    return jnp.argmin(jnp.where(tie, order[None, :], _BIG), axis=1).astype(jnp.int32)
+_DIRS = jnp.arange(4, dtype=jnp.int32)[None, :]
 
 
 def _select_min(mask: jax.Array, score: jax.Array, order: jax.Array) -> jax.Array:
-    """Among ``mask`` candidates, the smallest ``score``; ties to the first in ``order``."""
-    big = jnp.array(jnp.inf if jnp.issubdtype(score.dtype, jnp.floating) else _BIG, score.dtype)
-    s = jnp.where(mask, score, big)
-    best = jnp.min(s, axis=1, keepdims=True)
-    return _pick_first_in_order(mask & (s == best), order)
+    """Among ``mask`` candidates ([U, M]), the smallest int ``score`` (< 2^16); ties to the first
+    in ``order`` ([M]). One packed min-reduction."""
+    key = jnp.where(mask, (score << ORDER_BITS) | order[None, :], _BIG)
+    return (jnp.min(key, axis=1) & SLOT_MASK).astype(jnp.int32)
+
+
+def _select_max_float(mask: jax.Array, value: jax.Array, order: jax.Array) -> jax.Array:
+    """Among ``mask`` candidates, the largest float ``value`` (strictly positive); ties to the
+    first in ``order``."""
+    v = jnp.where(mask, value, -1.0)
+    best = jnp.max(v, axis=-1, keepdims=True)
+    return first_in_order(mask & (v == best), order)[0]
 
 
 def closest_enemy(state: GameState, ctx: TurnContext, p: int) -> jax.Array:
@@ -57,12 +64,11 @@ def closest_enemy(state: GameState, ctx: TurnContext, p: int) -> jax.Array:
     q = 1 - p
     d2 = ctx.enemy_d2(p)
     cand = ctx.alive[q][None, :] & (d2 <= _CLOSEST_LIMIT)
-    # Lexicographic (distance, id): distances are < 2^22 on any sane map, ids < 2^13.
-    key = jnp.where(cand, d2, _BIG)
-    best = jnp.min(key, axis=1, keepdims=True)
-    by_id = jnp.argmin(jnp.where(cand & (key == best), state.uid[q][None, :], _BIG), axis=1)
-    first_in_order = jnp.argmin(ctx.order[q])
-    return jnp.where(cand.any(axis=1), by_id, first_in_order).astype(jnp.int32)
+    # Lexicographic (distance, id) as distance << 9 | slot (slot order is id order; d2 < 2^20).
+    slot = jnp.arange(d2.shape[1], dtype=jnp.int32)
+    k = jnp.min(jnp.where(cand, (d2 << SLOT_BITS) | slot[None, :], _BIG), axis=1)
+    first = jnp.min(ctx.order[q]) & SLOT_MASK
+    return jnp.where(k < _BIG, k & SLOT_MASK, first).astype(jnp.int32)
 
 
 def _gather_rows(m: jax.Array, idx: jax.Array) -> jax.Array:
@@ -87,16 +93,16 @@ def _move_scores(state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: 
 def move_toward(state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array) -> tuple[jax.Array, jax.Array]:
     """(action code [U], any legal move [U]) of the legal MOVE closest to (tx, ty)."""
     ok = ctx.move_ok[p]
-    s = jnp.where(ok, _move_scores(state, ctx, p, tx, ty), _BIG)
-    return (jnp.argmin(s, axis=1) + MOVE_ACTIONS[0]).astype(jnp.int32), ok.any(axis=1)
+    k = jnp.min(jnp.where(ok, (_move_scores(state, ctx, p, tx, ty) << 2) | _DIRS, _BIG), axis=1)
+    return ((k & 3) + MOVE_ACTIONS[0]).astype(jnp.int32), k < _BIG
 
 
 def move_away(state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array) -> tuple[jax.Array, jax.Array]:
     """(action code [U], any candidate [U]) of the legal MOVE furthest from (tx, ty), strict > 0."""
     ok = ctx.move_ok[p]
-    s = jnp.where(ok, _move_scores(state, ctx, p, tx, ty), -1)
-    found = (s > 0).any(axis=1)
-    return (jnp.argmax(s, axis=1) + MOVE_ACTIONS[0]).astype(jnp.int32), found
+    # First maximum: max of score << 2 | (3 - dir).
+    k = jnp.max(jnp.where(ok, (_move_scores(state, ctx, p, tx, ty) << 2) | (3 - _DIRS), -1), axis=1)
+    return ((3 - (k & 3)) + MOVE_ACTIONS[0]).astype(jnp.int32), (k >> 2) > 0
 
 
 def _enemy_pos(ctx: TurnContext, q: int, j: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -163,7 +169,7 @@ def _target_weakest(state: GameState, ctx: TurnContext, p: int, mask: jax.Array)
 def _target_dps(state: GameState, ctx: TurnContext, p: int, mask: jax.Array) -> jax.Array:
     q = 1 - p
     value = jnp.broadcast_to(_dpf_per_hp(state, q, state.hp[q])[None, :], mask.shape)
-    return _select_min(mask, -value, ctx.order[q])
+    return _select_max_float(mask, value, ctx.order[q])
 
 
 attack_closest: Script = _with_attack(_target_closest, _approach_or_reload)
@@ -187,10 +193,7 @@ def _nok_targets(state: GameState, ctx: TurnContext, p: int) -> tuple[jax.Array,
     def body(hp_rem, u):
         cand = mask[u] & (hp_rem > 0) & ctx.acting[p][u]
         value = dpf / jnp.maximum(hp_rem, 1).astype(jnp.float32)
-        v = jnp.where(cand, value, -1.0)
-        best = jnp.max(v)
-        tie = cand & (v == best)
-        j = jnp.argmin(jnp.where(tie, order, _BIG)).astype(jnp.int32)
+        j = _select_max_float(cand, value, order)
         found = cand.any()
         hp_rem = hp_rem.at[j].add(jnp.where(found, -my_damage[u], 0))
         return hp_rem, (j, found)
@@ -250,9 +253,8 @@ def attack_weakest_global(key: jax.Array, state: GameState, ctx: TurnContext, p:
     del key
     q = 1 - p
     alive = ctx.alive[q]
-    hp = jnp.where(alive, state.hp[q], _BIG)
-    best = jnp.min(hp)
-    target = jnp.argmin(jnp.where(alive & (hp == best), state.uid[q], _BIG)).astype(jnp.int32)
+    slot = jnp.arange(alive.shape[0], dtype=jnp.int32)
+    target = (jnp.min(jnp.where(alive, (state.hp[q] << SLOT_BITS) | slot, _BIG)) & SLOT_MASK).astype(jnp.int32)
     size = state.x.shape[-1]
     targets = jnp.full(size, target)
     in_range = in_own_range(state, ctx, p, targets)

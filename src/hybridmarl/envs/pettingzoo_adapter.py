@@ -1,0 +1,279 @@
+"""A PettingZoo ``ParallelEnv`` view of any :class:`hybridmarl.envs.base.MultiAgentEnv`.
+
+One environment, no batching: this is for interoperability (PettingZoo tooling, quick manual
+play, recording videos), not for training, which uses the pure functions directly under
+``jit``/``vmap``.
+
+Semantics:
+
+- ``possible_agents`` and, after ``reset``, ``agents`` are *all* agent slots of the wrapped env;
+  slots stay agents for the whole episode even while not in play (a Traffic Junction slot with
+  no car): such an agent gets an all-zero observation, ``infos[agent]["active"] == False`` and
+  an action mask allowing only action 0. PettingZoo forbids reviving an agent once removed,
+  and slots come back into play (TJ recycles car ids), so removing them early is not an option.
+  At episode end every agent gets ``terminations[agent] = True`` (the wrapped env's fixed
+  horizon is the task's definition of an episode, paper Section 5.3) and ``agents`` empties.
+- Rewards: the wrapped env's global team reward, given to every agent.
+- ``infos[agent]`` holds ``"action_mask"`` (int8 ``[num_actions]``), ``"active"``, and the
+  wrapped env's ``info``: 0-d entries are shared by every agent, entries whose leading axis is
+  ``num_agents`` are sliced per agent, anything else is shared as is.
+- Actions: an agent missing from the action dict plays action 0 (the no-op every env
+  guarantees to be legal). An action outside the agent's mask raises ``ValueError`` naming the
+  agent and the action (``illegal_action="raise"``, the default). With
+  ``illegal_action="noop"`` it is replaced by action 0 instead; use that for tools that sample
+  from the unmasked ``Discrete`` space, such as ``pettingzoo.test.parallel_api_test`` and
+  ``parallel_seed_test``.
+- Seeding: ``reset(seed=s)`` re-seeds the adapter's JAX key, so episodes are reproducible;
+  ``reset()`` without a seed continues the current key stream (seeded from OS entropy at first
+  use).
+- ``state()`` returns the wrapped env's critic features with every agent's action set to 0.
+
+The wrapped env's ``reset``/``step``/masks are jitted once per env object and shared by every
+adapter built on that object (changing ``params`` values does not recompile).
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from pettingzoo import ParallelEnv
+
+from hybridmarl.envs.base import MultiAgentEnv
+
+__all__ = ["PettingZooAdapter"]
+
+
+@dataclass(frozen=True)
+class _Compiled:
+    reset: Any
+    step: Any
+    avail: Any
+    active: Any
+    critic: Any
+
+
+_CACHE: weakref.WeakKeyDictionary[Any, _Compiled] = weakref.WeakKeyDictionary()
+
+
+def _compiled(env: MultiAgentEnv[Any, Any]) -> _Compiled:
+    """Jitted entry points for ``env``, built once per env object.
+
+    The jitted closures hold the env only weakly, so the cache entry dies with the env.
+    """
+    try:
+        return _CACHE[env]
+    except KeyError:
+        pass
+    ref = weakref.ref(env)
+
+    def _env() -> MultiAgentEnv[Any, Any]:
+        e = ref()
+        if e is None:  # pragma: no cover - only reachable if a jitted fn outlives its env
+            raise RuntimeError("the wrapped environment was garbage-collected")
+        return e
+
+    def reset(key: jax.Array, params: Any) -> Any:
+        obs, state = _env().reset(key, params)
+        return obs, state, _env().get_avail_actions(state, params), _env().agent_active(state)
+
+    def step(key: jax.Array, state: Any, actions: jax.Array, params: Any) -> Any:
+        out = _env().step(key, state, actions, params)
+        new_state = out[1]
+        mask = _env().get_avail_actions(new_state, params)
+        return (*out, mask, _env().agent_active(new_state))
+
+    compiled = _Compiled(
+        reset=jax.jit(reset),
+        step=jax.jit(step),
+        avail=jax.jit(lambda state, params: _env().get_avail_actions(state, params)),
+        active=jax.jit(lambda state: _env().agent_active(state)),
+        critic=jax.jit(lambda state, actions: _env().critic_features(state, actions)),
+    )
+    _CACHE[env] = compiled
+    return compiled
+
+
+class PettingZooAdapter(ParallelEnv):
+    """PettingZoo ``ParallelEnv`` over one instance of a :class:`MultiAgentEnv` (see module doc).
+
+    Args:
+        env: the functional environment to wrap.
+        params: its parameters (default: ``env.default_params``).
+        render_mode: ``None`` or ``"rgb_array"``.
+        illegal_action: ``"raise"`` (default) or ``"noop"`` (replace by action 0).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "name": "hybridmarl", "is_parallelizable": True}
+
+    def __init__(
+        self,
+        env: MultiAgentEnv[Any, Any],
+        params: Any = None,
+        render_mode: str | None = None,
+        illegal_action: str = "raise",
+    ) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        if illegal_action not in ("raise", "noop"):
+            raise ValueError(f"illegal_action must be 'raise' or 'noop', got {illegal_action!r}")
+        self.env = env
+        self.params = env.default_params if params is None else params
+        self.render_mode = render_mode
+        self.illegal_action = illegal_action
+        self.metadata = {**type(self).metadata, "name": env.name}
+        self.possible_agents = list(env.agents)
+        self.agents = []
+        self._index = {agent: i for i, agent in enumerate(self.possible_agents)}
+        self._fns = _compiled(env)
+        low, high = getattr(env, "observation_bounds", (-np.inf, np.inf))
+        self._observation_spaces = {
+            a: gymnasium.spaces.Box(low, high, env.observation_shape, np.float32)
+            for a in self.possible_agents
+        }
+        self._action_spaces = {
+            a: gymnasium.spaces.Discrete(env.num_actions) for a in self.possible_agents
+        }
+        self.state_space = gymnasium.spaces.Box(
+            -np.inf, np.inf, (env.critic_feature_size,), np.float32
+        )
+        self._key: jax.Array | None = None
+        self._state: Any = None
+        self._mask: np.ndarray | None = None
+        self._active: np.ndarray | None = None
+
+    # -- spaces ----------------------------------------------------------------------------------
+
+    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+        return self._observation_spaces[agent]
+
+    def action_space(self, agent: str) -> gymnasium.spaces.Discrete:
+        return self._action_spaces[agent]
+
+    # -- episode ---------------------------------------------------------------------------------
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+        del options
+        if seed is not None:
+            self._key = jax.random.key(seed)
+        elif self._key is None:
+            self._key = jax.random.key(int(np.random.SeedSequence().generate_state(1)[0]))
+        assert self._key is not None
+        self._key, sub = jax.random.split(self._key)
+        obs, state, mask, active = self._fns.reset(sub, self.params)
+        self._state = state
+        obs, self._mask, self._active = jax.device_get((obs, mask, active))
+        self.agents = list(self.possible_agents)
+        return self._split_obs(obs), self._infos({})
+
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[
+        dict[str, np.ndarray],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        if not self.agents or self._key is None or self._mask is None:
+            raise RuntimeError("the episode is over (or never started): call reset() first")
+        joint = np.zeros((len(self.possible_agents),), np.int32)
+        for agent, action in actions.items():
+            if agent not in self._index:
+                raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
+            i = self._index[agent]
+            a = self._as_action(agent, action)
+            if not self._mask[i, a]:
+                if self.illegal_action == "raise":
+                    legal = np.flatnonzero(self._mask[i]).tolist()
+                    raise ValueError(
+                        f"illegal action {a} for agent {agent!r} (legal actions: {legal}; "
+                        f"active={bool(self._active[i]) if self._active is not None else '?'})"
+                    )
+                a = 0
+            joint[i] = a
+        self._key, sub = jax.random.split(self._key)
+        obs, state, reward, done, info, mask, active = self._fns.step(
+            sub, self._state, jnp.asarray(joint), self.params
+        )
+        self._state = state
+        obs, reward, done, info, self._mask, self._active = jax.device_get(
+            (obs, reward, done, info, mask, active)
+        )
+        agents = list(self.agents)
+        rewards = dict.fromkeys(agents, float(reward))
+        terminations = dict.fromkeys(agents, bool(done))
+        truncations = dict.fromkeys(agents, False)
+        out_obs = self._split_obs(obs)
+        infos = self._infos(info)
+        if done:
+            self.agents = []
+        return out_obs, rewards, terminations, truncations, infos
+
+    # -- extras ----------------------------------------------------------------------------------
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called with render_mode=None; nothing to draw")
+            return None
+        if self._state is None:
+            raise RuntimeError("call reset() before render()")
+        return self.env.render(self._state, self.params)
+
+    def state(self) -> np.ndarray:
+        if self._state is None:
+            raise RuntimeError("call reset() before state()")
+        zeros = jnp.zeros((len(self.possible_agents),), jnp.int32)
+        return np.asarray(self._fns.critic(self._state, zeros))
+
+    def close(self) -> None:
+        self._state = None
+
+    @property
+    def env_state(self) -> Any:
+        """The wrapped env's current state pytree (e.g. to run a demonstrator on it)."""
+        return self._state
+
+    # -- helpers ---------------------------------------------------------------------------------
+
+    def _as_action(self, agent: str, action: Any) -> int:
+        arr = np.asarray(action)
+        if arr.shape != () or not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"action for agent {agent!r} must be an integer, got {action!r}")
+        a = int(arr)
+        if not 0 <= a < self.env.num_actions:
+            raise ValueError(
+                f"illegal action {a} for agent {agent!r}: outside 0..{self.env.num_actions - 1}"
+            )
+        return a
+
+    def _split_obs(self, obs: np.ndarray) -> dict[str, np.ndarray]:
+        return {a: np.array(obs[self._index[a]], np.float32) for a in self.agents}
+
+    def _infos(self, info: dict[str, Any]) -> dict[str, dict[str, Any]]:
+        assert self._mask is not None and self._active is not None
+        n = len(self.possible_agents)
+        infos: dict[str, dict[str, Any]] = {}
+        for agent in self.agents:
+            i = self._index[agent]
+            entry: dict[str, Any] = {
+                "action_mask": self._mask[i].astype(np.int8),
+                "active": bool(self._active[i]),
+            }
+            for k, v in info.items():
+                v = np.asarray(v)
+                if v.ndim == 0:
+                    entry[k] = v.item()
+                elif v.shape[0] == n:
+                    entry[k] = v[i].item() if v.ndim == 1 else v[i].copy()
+                else:
+                    entry[k] = v.copy()
+            infos[agent] = entry
+        return infos
