@@ -185,7 +185,7 @@ def _print_table(label: str, results) -> None:
     from rich.table import Table
 
     table = Table(title=f"Battles: {label}")
-    for col in ("player 0 (left)", "player 1 (right)", "battles", "P0 wins", "P1 wins", "draws", "mean turns", "mean final frame"):
+    for col in ("P0 (left)", "P1 (right)", "battles", "P0 wins", "P1 wins", "draws", "mean turns", "mean frames"):
         table.add_column(col, justify="right")
     for r in results:
         s = r.summary()
@@ -199,7 +199,9 @@ def _print_table(label: str, results) -> None:
             f"{s['mean_turns']:.1f}",
             f"{s['mean_final_time']:.1f}",
         )
-    Console().print(table)
+    console = Console()
+    # Keep the table on one line per row when stdout is not a terminal (logs, pipes, CI).
+    Console(width=max(console.width, 120)).print(table)
 
 
 def run_trace(cfg: TraceConfig) -> int:

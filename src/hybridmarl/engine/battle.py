@@ -17,12 +17,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.engine import game
 from hybridmarl.engine.scenarios import InputError
 from hybridmarl.engine.scripts import canonical_name
-from hybridmarl.engine.state import GameState, Rules, UnitSpec, build_state, make_rules, stack_states
+from hybridmarl.engine.state import (
+    GameState,
+    Rules,
+    UnitSpec,
+    build_state,
+    make_rules,
+    stack_states,
+)
 
 
 @dataclass
@@ -115,7 +123,7 @@ def run_battles(
             kchunk = np.concatenate([np.asarray(keys[start:stop]), np.repeat(np.asarray(keys[stop - 1 : stop]), batch_size - m, 0)])
         else:
             kchunk = keys[start:stop]
-        res = game.play_batch(kchunk, chunk, rules, p0c, p1c)
+        res = game.play_batch(jnp.asarray(kchunk), chunk, rules, p0c, p1c)
         res = jax.tree.map(lambda a, m=m: np.asarray(a)[:m], res)
         outs.append(res)
         if bar is not None:

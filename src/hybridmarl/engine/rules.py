@@ -18,6 +18,8 @@ MOVE_UP=5 (-y), ATTACK(j)=6+j`` where ``j`` is the target's slot in the enemy ro
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -289,7 +291,8 @@ def apply_actions(
     f0, dmg_to_1 = _apply_player(state, ctx, 0, actions[0], rules)
     f1, dmg_to_0 = _apply_player(state, ctx, 1, actions[1], rules)
     hp = jnp.maximum(state.hp - jnp.stack([dmg_to_0, dmg_to_1]), 0)
-    new = state.replace(
+    new = dataclasses.replace(
+        state,
         **{k: jnp.stack([f0[k], f1[k]]) for k in f0},
         hp=hp,
     )
@@ -307,7 +310,8 @@ def finish_turn(state: GameState, rules: Rules) -> GameState:
     time = jnp.where(nxt < _INF, nxt, state.time)
     hp_sum = jnp.sum(jnp.where(state.hp > 0, state.hp, 0), axis=1).astype(jnp.int32)
     same = jnp.all(hp_sum == state.prev_hp_sum)
-    return state.replace(
+    return dataclasses.replace(
+        state,
         time=time.astype(jnp.int32),
         turn=state.turn + 1,
         stale=jnp.where(same, state.stale + 1, 0).astype(jnp.int32),
