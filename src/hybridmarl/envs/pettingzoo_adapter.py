@@ -6,30 +6,42 @@ play, recording videos), not for training, which uses the pure functions directl
 
 Semantics:
 
-- ``possible_agents`` and, after ``reset``, ``agents`` are *all* agent slots of the wrapped env;
-  slots stay agents for the whole episode even while not in play (a Traffic Junction slot with
-  no car): such an agent gets an all-zero observation, ``infos[agent]["active"] == False`` and
-  an action mask allowing only action 0. PettingZoo forbids reviving an agent once removed,
-  and slots come back into play (TJ recycles car ids), so removing them early is not an option.
-  At episode end every agent gets ``terminations[agent] = True`` (the wrapped env's fixed
-  horizon is the task's definition of an episode, paper Section 5.3) and ``agents`` empties.
+- ``possible_agents`` are all agent slots of the wrapped env. What ``agents`` holds depends on
+  the env's ``remove_inactive_agents`` attribute (default False):
+
+  - False (Traffic Junction): after ``reset``, ``agents`` is every slot, and slots stay agents
+    for the whole episode even while not in play (a TJ slot with no car): such an agent gets an
+    all-zero observation, ``infos[agent]["active"] == False`` and an action mask allowing only
+    action 0. PettingZoo forbids reviving an agent once removed, and slots come back into play
+    (TJ recycles car ids), so removing them early is not an option.
+  - True (combat: a dead unit never comes back): ``agents`` after ``reset`` is the slots in
+    play; an agent whose slot leaves play (its unit died) gets ``terminations[agent] = True``
+    on that step (with its last, all-zero observation) and is removed from ``agents``.
+
+  At episode end every remaining agent gets ``terminations[agent] = True`` (the wrapped env's
+  episode end is the task's definition of an episode, e.g. paper Section 5.3's fixed horizon)
+  and ``agents`` empties. ``truncations`` are always False.
 - Rewards: the wrapped env's global team reward, given to every agent.
 - ``infos[agent]`` holds ``"action_mask"`` (int8 ``[num_actions]``), ``"active"``, and the
   wrapped env's ``info``: 0-d entries are shared by every agent, entries whose leading axis is
   ``num_agents`` are sliced per agent, anything else is shared as is.
-- Actions: an agent missing from the action dict plays action 0 (the no-op every env
-  guarantees to be legal). An action outside the agent's mask raises ``ValueError`` naming the
-  agent and the action (``illegal_action="raise"``, the default). With
-  ``illegal_action="noop"`` it is replaced by action 0 instead; use that for tools that sample
-  from the unmasked ``Discrete`` space, such as ``pettingzoo.test.parallel_api_test`` and
+- Actions: an agent missing from the action dict plays its *fallback action*: the env's
+  ``fallback_actions(state)`` if it defines one (combat: noop where legal, else SparCraft's first
+  legal action), else action 0 (the no-op, legal for every Traffic Junction agent). An action
+  outside the agent's mask raises ``ValueError`` naming the agent and the action
+  (``illegal_action="raise"``, the default). With ``illegal_action="noop"`` it is replaced by
+  the fallback action instead (action 0 for TJ); use that for tools that sample from the
+  unmasked ``Discrete`` space, such as ``pettingzoo.test.parallel_api_test`` and
   ``parallel_seed_test``.
 - Seeding: ``reset(seed=s)`` re-seeds the adapter's JAX key, so episodes are reproducible;
   ``reset()`` without a seed continues the current key stream (seeded from OS entropy at first
-  use).
+  use). The key is split inside the jitted step (the same stream as splitting outside).
 - ``state()`` returns the wrapped env's critic features with every agent's action set to 0.
 
 The wrapped env's ``reset``/``step``/masks are jitted once per env object and shared by every
-adapter built on that object (changing ``params`` values does not recompile).
+adapter built on that object (changing ``params`` values does not recompile). Each ``reset`` and
+``step`` is one jitted call and one device-to-host transfer, which keeps the adapter's overhead
+over the bare jitted step small (``bench/envs.py`` measures it).
 """
 
 from __future__ import annotations
@@ -78,15 +90,25 @@ def _compiled(env: MultiAgentEnv[Any, Any]) -> _Compiled:
             raise RuntimeError("the wrapped environment was garbage-collected")
         return e
 
+    def extras(state: Any, params: Any) -> tuple[Any, Any, Any]:
+        e = _env()
+        mask = e.get_avail_actions(state, params)
+        fallback_fn = getattr(e, "fallback_actions", None)
+        if fallback_fn is None:
+            fallback = jnp.zeros((e.num_agents,), jnp.int32)
+        else:
+            fallback = fallback_fn(state)
+        return mask, e.agent_active(state), fallback
+
     def reset(key: jax.Array, params: Any) -> Any:
-        obs, state = _env().reset(key, params)
-        return obs, state, _env().get_avail_actions(state, params), _env().agent_active(state)
+        key, sub = jax.random.split(key)
+        obs, state = _env().reset(sub, params)
+        return (key, obs, state, *extras(state, params))
 
     def step(key: jax.Array, state: Any, actions: jax.Array, params: Any) -> Any:
-        out = _env().step(key, state, actions, params)
-        new_state = out[1]
-        mask = _env().get_avail_actions(new_state, params)
-        return (*out, mask, _env().agent_active(new_state))
+        key, sub = jax.random.split(key)
+        out = _env().step(sub, state, actions, params)
+        return (key, *out, *extras(out[1], params))
 
     compiled = _Compiled(
         reset=jax.jit(reset),
@@ -146,6 +168,8 @@ class PettingZooAdapter(ParallelEnv):
         self._state: Any = None
         self._mask: np.ndarray | None = None
         self._active: np.ndarray | None = None
+        self._fallback: np.ndarray | None = None
+        self._remove_inactive = bool(getattr(env, "remove_inactive_agents", False))
 
     # -- spaces ----------------------------------------------------------------------------------
 
@@ -165,12 +189,14 @@ class PettingZooAdapter(ParallelEnv):
             self._key = jax.random.key(seed)
         elif self._key is None:
             self._key = jax.random.key(int(np.random.SeedSequence().generate_state(1)[0]))
-        assert self._key is not None
-        self._key, sub = jax.random.split(self._key)
-        obs, state, mask, active = self._fns.reset(sub, self.params)
-        self._state = state
-        obs, self._mask, self._active = jax.device_get((obs, mask, active))
-        self.agents = list(self.possible_agents)
+        key, obs, state, mask, active, fallback = self._fns.reset(self._key, self.params)
+        self._key, self._state = key, state
+        obs, self._mask, self._active, self._fallback = jax.device_get((obs, mask, active, fallback))
+        assert self._active is not None
+        if self._remove_inactive:
+            self.agents = [a for a in self.possible_agents if self._active[self._index[a]]]
+        else:
+            self.agents = list(self.possible_agents)
         return self._split_obs(obs), self._infos({})
 
     def step(
@@ -182,9 +208,9 @@ class PettingZooAdapter(ParallelEnv):
         dict[str, bool],
         dict[str, dict[str, Any]],
     ]:
-        if not self.agents or self._key is None or self._mask is None:
+        if not self.agents or self._key is None or self._mask is None or self._fallback is None:
             raise RuntimeError("the episode is over (or never started): call reset() first")
-        joint = np.zeros((len(self.possible_agents),), np.int32)
+        joint = self._fallback.astype(np.int32).copy()
         for agent, action in actions.items():
             if agent not in self._index:
                 raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
@@ -197,24 +223,27 @@ class PettingZooAdapter(ParallelEnv):
                         f"illegal action {a} for agent {agent!r} (legal actions: {legal}; "
                         f"active={bool(self._active[i]) if self._active is not None else '?'})"
                     )
-                a = 0
+                a = int(self._fallback[i])
             joint[i] = a
-        self._key, sub = jax.random.split(self._key)
-        obs, state, reward, done, info, mask, active = self._fns.step(
-            sub, self._state, jnp.asarray(joint), self.params
+        out = self._fns.step(self._key, self._state, joint, self.params)
+        self._key, self._state = out[0], out[2]
+        obs, reward, done, info, self._mask, self._active, self._fallback = jax.device_get(
+            (out[1], out[3], out[4], out[5], out[6], out[7], out[8])
         )
-        self._state = state
-        obs, reward, done, info, self._mask, self._active = jax.device_get(
-            (obs, reward, done, info, mask, active)
-        )
+        assert self._active is not None
         agents = list(self.agents)
+        done = bool(done)
         rewards = dict.fromkeys(agents, float(reward))
-        terminations = dict.fromkeys(agents, bool(done))
+        if self._remove_inactive:
+            terminations = {
+                a: done or not bool(self._active[self._index[a]]) for a in agents
+            }
+        else:
+            terminations = dict.fromkeys(agents, done)
         truncations = dict.fromkeys(agents, False)
         out_obs = self._split_obs(obs)
         infos = self._infos(info)
-        if done:
-            self.agents = []
+        self.agents = [] if done else [a for a in agents if not terminations[a]]
         return out_obs, rewards, terminations, truncations, infos
 
     # -- extras ----------------------------------------------------------------------------------

@@ -1,0 +1,171 @@
+"""Alg. 1: best-response dynamics on the centralised critic, batched over games, under jit.
+
+For one state ``s`` and a start joint action ``Ã = A^D(s)`` (the demonstrator's, or the current
+actor's: Section 4.3), every iteration goes over the agents in turn; for the current agent ``g``
+and every action ``a`` it computes
+
+    Q(s, a, Ã_-g) = r(s, a, Ã_-g) + λ V(s')          (Eq. 2, one-step forward simulation)
+
+takes the best legal action and writes it into ``Ã``. Here all ``A`` candidate joint actions of
+all ``B`` games are simulated by **one** vmapped call (``q_fn`` below), so one iteration costs
+``N`` such calls: linear in the number of agents (Section 4.2, "Iterations × N computations").
+
+Implementation choices (none changes the fixed point Alg. 1 reaches):
+
+- **Only agents with a choice are visited.** An agent with a single legal action (a unit that
+  does not act at this decision point, an empty Traffic Junction slot) cannot change ``Ã``.
+  Each game lists its deciding agents first (in agent order); the sweep visits position
+  ``k = 0 .. max_b(#deciders_b) - 1``, i.e. agent ``perm[b, k]`` in game ``b``.
+- **An agent switches only on a strict improvement** (``Q(best) > Q(current)``): ties keep the
+  current action (so a converged ``Ã`` is a fixed point and float noise cannot make ``Q`` go
+  down). ``Q(s, Ã)`` therefore never decreases (Section 4.2: "In each iteration ... Q increases").
+- **Early exit.** When a whole sweep changes nothing in any game, the remaining iterations
+  would be no-ops and the loop stops (``Iterations`` = 7 is the cap, Section 5.1).
+- **Eq. 7 needs ``Q(s, a, Ã_-g)`` at the final ``Ã``.** The table of the last sweep is exact if
+  that sweep changed nothing; otherwise (the cap was hit) one extra evaluation sweep, with no
+  updates, recomputes it.
+- An illegal start action is replaced by the agent's first legal action.
+- The simulator key is the same for every candidate and every iteration of one state (common
+  random numbers): ``Q(s, A)`` is a deterministic function of ``A``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+#: ``q_fn(keys [B], states [B], candidates int32 [B, A, N]) -> Q float32 [B, A]``.
+QFn = Callable[[jax.Array, Any, jax.Array], jax.Array]
+
+
+class BRDResult(NamedTuple):
+    actions: jax.Array  # int32 [B, N]: Ã, the joint local optimum
+    q: jax.Array  # float32 [B, N, A]: Q(s, a, Ã_-g) at the final Ã (0 where not computed)
+    q_valid: jax.Array  # bool [B, N]: agent g's row of ``q`` was computed (it has a choice)
+    q_init: jax.Array  # float32 [B]: Q(s, A_start) (NaN if no agent has a choice)
+    q_final: jax.Array  # float32 [B]: Q(s, Ã)
+    sweeps: jax.Array  # int32 []: update sweeps run (<= iterations)
+    changes: jax.Array  # int32 [B]: single-agent switches made
+    trace: jax.Array  # float32 [iterations * N, B]: Q(s, Ã) after each update (NaN: no update)
+
+
+def make_q_fn(
+    lookahead: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]],
+    value_fn: Callable[[Any], jax.Array],
+    gamma: float,
+) -> QFn:
+    """Build Eq. 2's ``Q(s, A) = r + λ V(s')`` (``V(s') = 0`` at a terminal ``s'``) for B games.
+
+    ``lookahead(key, state, cand [A, N]) -> (r [A], s' [A], done [A])`` is one game's one-step
+    simulation; ``value_fn(states [M]) -> V [M]`` evaluates the critic on a flat batch.
+    """
+
+    def q_fn(keys: jax.Array, states: Any, cand: jax.Array) -> jax.Array:
+        r, s2, done = jax.vmap(lookahead)(keys, states, cand)
+        b, a = r.shape
+        flat = jax.tree.map(lambda x: x.reshape((b * a,) + x.shape[2:]), s2)
+        v = value_fn(flat).reshape(b, a)
+        return r + gamma * jnp.where(done, 0.0, v)
+
+    return q_fn
+
+
+def best_response_dynamics(
+    q_fn: QFn,
+    keys: jax.Array,
+    states: Any,
+    a_init: jax.Array,
+    legal: jax.Array,
+    iterations: int = 7,
+) -> BRDResult:
+    """Alg. 1 for B games at once (see the module docstring). Jittable.
+
+    Args:
+        q_fn: batched ``Q(s, A)`` (:func:`make_q_fn`).
+        keys: [B] simulator keys (one per game, reused for every candidate).
+        states: [B] environment states.
+        a_init: int32 [B, N] start joint actions (``A^D(s)``, or the actor's).
+        legal: bool [B, N, A] legal actions.
+        iterations: the cap on sweeps over the agents (paper: 7).
+    """
+    b, n, na = legal.shape
+    a_init = a_init.astype(jnp.int32)
+    bidx = jnp.arange(b)
+    actions_range = jnp.arange(na, dtype=jnp.int32)
+    decider = jnp.sum(legal, axis=-1) >= 2  # [B, N]
+    # Deciders first, in agent order (stable sort on "not a decider").
+    perm = jnp.argsort(~decider, axis=1, stable=True).astype(jnp.int32)  # [B, N]
+    n_dec = jnp.sum(decider, axis=1).astype(jnp.int32)  # [B]
+    max_dec = jnp.max(n_dec)
+    # An illegal start action (e.g. a demonstrator that ignores a mask) becomes the first legal one.
+    start_ok = jnp.take_along_axis(legal, a_init[..., None], axis=-1)[..., 0]
+    a_init = jnp.where(start_ok, a_init, jnp.argmax(legal, axis=-1)).astype(jnp.int32)
+
+    def visit(k: jax.Array, carry: tuple, update: bool) -> tuple:
+        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep = carry
+        g = perm[:, jnp.minimum(k, n - 1)]  # [B]
+        valid = k < n_dec  # [B]
+        cand = jnp.broadcast_to(act[:, None, :], (b, na, n))
+        cand = jnp.where(jnp.arange(n)[None, None, :] == g[:, None, None], actions_range[None, :, None], cand)
+        q = q_fn(keys, states, cand)  # [B, A]
+        lg = legal[bidx, g]  # [B, A]
+        ql = jnp.where(lg, q, -jnp.inf)
+        best = jnp.argmax(ql, axis=-1).astype(jnp.int32)
+        cur = act[bidx, g]
+        q_cur = jnp.where(lg[bidx, cur], q[bidx, cur], -jnp.inf)
+        q_best = ql[bidx, best]
+        improve = valid & (q_best > q_cur) if update else jnp.zeros_like(valid)
+        new_a = jnp.where(improve, best, cur)
+        act = act.at[bidx, g].set(jnp.where(valid, new_a, cur))
+        qtab = qtab.at[bidx, g].set(jnp.where(valid[:, None], q, qtab[bidx, g]))
+        qval = qval.at[bidx, g].set(qval[bidx, g] | valid)
+        q_now = jnp.where(improve, q_best, q_cur)
+        qcur = jnp.where(valid, q_now, qcur)
+        first = valid & jnp.isnan(q_init)
+        q_init = jnp.where(first, q_cur, q_init)
+        changed = changed | improve
+        changes = changes + improve.astype(jnp.int32)
+        if update:
+            idx = jnp.minimum(sweep * n + k, iterations * n - 1)
+            trace = trace.at[idx].set(jnp.where(valid, q_now, jnp.nan))
+        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep
+
+    def sweep_fn(carry: tuple, update: bool) -> tuple:
+        act, qtab, qval, qcur, _, changes, q_init, trace, sweep = carry
+        carry = (act, qtab, qval, qcur, jnp.zeros((b,), bool), changes, q_init, trace, sweep)
+        carry = jax.lax.fori_loop(0, max_dec, lambda k, c: visit(k, c, update), carry)
+        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep = carry
+        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep + (1 if update else 0)
+
+    init = (
+        a_init,
+        jnp.zeros((b, n, na), jnp.float32),
+        jnp.zeros((b, n), bool),
+        jnp.full((b,), jnp.nan, jnp.float32),
+        jnp.ones((b,), bool),  # "changed in the last sweep": run at least one sweep
+        jnp.zeros((b,), jnp.int32),
+        jnp.full((b,), jnp.nan, jnp.float32),
+        jnp.full((max(iterations, 1) * n, b), jnp.nan, jnp.float32),
+        jnp.zeros((), jnp.int32),
+    )
+
+    def cond(carry: tuple) -> jax.Array:
+        return (carry[-1] < iterations) & jnp.any(carry[4])
+
+    carry = jax.lax.while_loop(cond, lambda c: sweep_fn(c, True), init)
+    # The cap was hit with changes in the last sweep: refresh the Q table at the final Ã.
+    carry = jax.lax.cond(jnp.any(carry[4]), lambda c: sweep_fn(c, False), lambda c: c, carry)
+    act, qtab, qval, qcur, _, changes, q_init, trace, sweep = carry
+    return BRDResult(
+        actions=act,
+        q=qtab,
+        q_valid=qval,
+        q_init=q_init,
+        q_final=qcur,
+        sweeps=sweep,
+        changes=changes,
+        trace=trace,
+    )

@@ -1,0 +1,140 @@
+"""Atomic checkpoints: safetensors for arrays, JSON for metadata; never pickle.
+
+Layout under a run directory::
+
+    checkpoints/
+      ckpt_000000123/          # 123 = the training counter (episodes) at save time
+        arrays.safetensors     # every array of the training state, by name
+        meta.json              # counters, config, versions; written last
+      ckpt_000000456/
+      ...
+
+A checkpoint directory is written under a temporary name and renamed into place, so a crash
+never leaves a half-written checkpoint under a final name; a directory without ``meta.json`` is
+ignored. The last ``keep`` checkpoints are kept.
+
+Named arrays come from ``tasks.flatten_named`` (pytree paths such as ``actor.params.Dense_0.kernel``);
+typed PRNG keys are stored as their uint32 key data.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from safetensors.numpy import load_file, save_file
+
+CKPT_DIR = "checkpoints"
+FORMAT_VERSION = 1
+_NAME = re.compile(r"^ckpt_(\d{9,})$")
+
+
+class CheckpointError(ValueError):
+    """A missing or unreadable checkpoint (one-line message)."""
+
+
+def _contiguous(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    out = {}
+    for k, v in arrays.items():
+        a = np.ascontiguousarray(np.asarray(v))
+        if a.dtype == object:
+            raise TypeError(f"array {k!r} has dtype object; only numeric arrays are checkpointed")
+        out[k] = a
+    return out
+
+
+def write_json_atomic(path: str | Path, doc: Any) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(doc, f, indent=2, sort_keys=True)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def save_checkpoint(run_dir: str | Path, step: int, arrays: dict[str, np.ndarray], meta: dict[str, Any], keep: int = 3) -> Path:
+    """Write checkpoint ``step`` atomically and prune to the newest ``keep``. Returns its path."""
+    root = Path(run_dir) / CKPT_DIR
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / f"ckpt_{int(step):09d}"
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp_ckpt_{int(step):09d}_", dir=root))
+    try:
+        save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
+        doc = dict(meta)
+        doc["format_version"] = FORMAT_VERSION
+        doc["step"] = int(step)
+        with open(tmp / "meta.json", "w") as f:
+            json.dump(doc, f, indent=2, sort_keys=True)
+            f.flush()
+            os.fsync(f.fileno())
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    for old in list_checkpoints(run_dir)[:-keep] if keep > 0 else []:
+        shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def list_checkpoints(run_dir: str | Path) -> list[Path]:
+    """Complete checkpoints of a run, oldest first."""
+    root = Path(run_dir) / CKPT_DIR
+    if not root.is_dir():
+        return []
+    found = []
+    for p in root.iterdir():
+        m = _NAME.match(p.name)
+        if m and p.is_dir() and (p / "meta.json").is_file() and (p / "arrays.safetensors").is_file():
+            found.append((int(m.group(1)), p))
+    return [p for _, p in sorted(found)]
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path | None:
+    ck = list_checkpoints(run_dir)
+    return ck[-1] if ck else None
+
+
+def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """``(arrays, meta)`` of one checkpoint directory."""
+    path = Path(path)
+    try:
+        with open(path / "meta.json") as f:
+            meta = json.load(f)
+        arrays = load_file(str(path / "arrays.safetensors"))
+    except FileNotFoundError as e:
+        raise CheckpointError(f"checkpoint {path}: missing {Path(e.filename).name}") from None
+    except (json.JSONDecodeError, OSError, ValueError) as e:
+        raise CheckpointError(f"checkpoint {path}: unreadable ({e})") from None
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(
+            f"checkpoint {path}: format version {meta.get('format_version')!r}, expected {FORMAT_VERSION}"
+        )
+    return arrays, meta
+
+
+def subtree(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    """The entries under ``prefix.`` with the prefix removed."""
+    p = prefix + "."
+    out = {k[len(p) :]: v for k, v in arrays.items() if k.startswith(p)}
+    if prefix in arrays:
+        out[""] = arrays[prefix]
+    return out
+
+
+def prefixed(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    return {(f"{prefix}.{k}" if k else prefix): v for k, v in arrays.items()}

@@ -1,0 +1,58 @@
+"""Environments: pure-functional multi-agent envs (``base.MultiAgentEnv``) and their PettingZoo view.
+
+>>> from hybridmarl import envs
+>>> env = envs.make("combat", scenario="m5v5", enemy="attack-weakest")
+>>> pz = envs.make_pettingzoo("traffic_junction", illegal_action="noop")
+
+Known names: ``combat`` (:class:`hybridmarl.envs.combat.Combat`, the paper's SparCraft combat,
+Section 5.1) and ``traffic_junction`` (:class:`hybridmarl.envs.traffic_junction.TrafficJunction`,
+Section 5.3). The versioned names ``combat_v0`` and ``traffic_junction_v0`` are accepted too.
+Submodules are imported on first use, so ``import hybridmarl.envs`` stays cheap.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["ENV_NAMES", "make", "make_pettingzoo"]
+
+#: Canonical environment names accepted by :func:`make`.
+ENV_NAMES: tuple[str, ...] = ("combat", "traffic_junction")
+_ALIASES = {"combat_v0": "combat", "traffic_junction_v0": "traffic_junction"}
+
+
+def _canonical(name: str) -> str:
+    key = str(name).strip().lower().replace("-", "_")
+    key = _ALIASES.get(key, key)
+    if key not in ENV_NAMES:
+        raise ValueError(f"unknown environment {name!r} (known: {', '.join(ENV_NAMES)})")
+    return key
+
+
+def make(name: str, **kwargs: Any) -> Any:
+    """The functional environment ``name`` built with ``kwargs`` (its constructor's arguments)."""
+    key = _canonical(name)
+    if key == "combat":
+        from hybridmarl.envs.combat import Combat
+
+        return Combat(**kwargs)
+    from hybridmarl.envs.traffic_junction import TrafficJunction
+
+    return TrafficJunction(**kwargs)
+
+
+def make_pettingzoo(
+    name: str,
+    *,
+    params: Any = None,
+    render_mode: str | None = None,
+    illegal_action: str = "raise",
+    **kwargs: Any,
+) -> Any:
+    """A PettingZoo ``ParallelEnv`` (:class:`~hybridmarl.envs.pettingzoo_adapter.PettingZooAdapter`)
+    over ``make(name, **kwargs)``."""
+    from hybridmarl.envs.pettingzoo_adapter import PettingZooAdapter
+
+    return PettingZooAdapter(
+        make(name, **kwargs), params=params, render_mode=render_mode, illegal_action=illegal_action
+    )
