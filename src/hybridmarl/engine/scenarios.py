@@ -11,8 +11,8 @@ Generators (host-side NumPy, seeded, so the same seed gives the same states ever
   intermixed in one square.
 
 Named scenarios: ``m<A>v<B>`` is a Marine battle, A Marines of ours (player 0, left) against B
-(player 1, right). The default geometry is **contact**: disk centres 100 px apart around the map
-centre ((590, 352) and (690, 352)), radius 75 px. Of the contact geometries we swept
+(player 1, right). The default geometry is **contact**: disk centres 150 px apart around the map
+centre ((565, 352) and (715, 352)), radius 100 px. Of the contact geometries we swept
 (``experiments/demonstrator_geometry.py``) it reproduces the paper's demonstrator rows (Table 1,
 D_c and D_w, attack-closest vs attack-weakest in both directions) best. ``m<A>v<B>-apart`` uses the reference playouts' main setting (sparcraft.md §6.2):
 centres (440, 352) and (840, 352), radius 100 px. Any other geometry or unit mix comes from a
@@ -231,10 +231,10 @@ class Scenario:
     side0: tuple[tuple[str, int], ...]
     side1: tuple[tuple[str, int], ...]
     kind: str = "disks"  # "disks" | "separated" | "symmetric"
-    center0: tuple[int, int] = (590, 352)
-    center1: tuple[int, int] = (690, 352)
-    radius0: int = 75
-    radius1: int = 75
+    center0: tuple[int, int] = (565, 352)
+    center1: tuple[int, int] = (715, 352)
+    radius0: int = 100
+    radius1: int = 100
     spread: tuple[int, int] = (128, 128)  # separated / symmetric offsets
     description: str = ""
     extra: dict = field(default_factory=dict, compare=False, hash=False)
@@ -272,8 +272,8 @@ def _stable_hash(s: str) -> int:
     return h
 
 
-CONTACT_SEPARATION = 100
-CONTACT_RADIUS = 75
+CONTACT_SEPARATION = 150
+CONTACT_RADIUS = 100
 APART_CENTERS = ((440, 352), (840, 352))
 APART_RADIUS = 100
 
@@ -350,8 +350,8 @@ def load_scenario_file(path: str | Path) -> Scenario:
          "kind": "disks",                       # or "separated", "symmetric"
          "player0": [{"type": "Protoss_Zealot", "count": 8}],
          "player1": [{"type": "Protoss_Dragoon", "count": 6}],
-         "center0": [590, 352], "center1": [690, 352],   # disks / separated
-         "radius0": 75, "radius1": 75,                    # disks
+         "center0": [565, 352], "center1": [715, 352],   # disks / separated
+         "radius0": 100, "radius1": 100,                  # disks
          "spread": [128, 128]}                            # separated / symmetric
     """
     p = Path(path)
