@@ -249,3 +249,23 @@ def test_no_jit_equals_jit(rules):
             b = turn(b)
         for la, lb in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
             np.testing.assert_array_equal(np.asarray(la), np.asarray(lb))
+
+
+@pytest.mark.parametrize(
+    ("p0", "p1", "winner", "survivor_hp", "turns", "final_time"),
+    [
+        ("attack-closest", "attack-weakest", 1, [4, 10], 37, 143),
+        ("attack-weakest", "attack-closest", 0, [16], 58, 179),
+        ("attack-closest", "attack-closest", 0, [16], 35, 154),
+        ("attack-weakest", "attack-weakest", 0, [4], 48, 192),
+    ],
+)
+def test_reference_3v3_outcomes(p0, p1, winner, survivor_hp, turns, final_time):
+    """sparcraft.md §6.5: the 3v3 Marine state and its four script pairings."""
+    units = []
+    for a, b in zip([(100, 80), (100, 100), (100, 130)], [(290, 90), (300, 100), (310, 110)], strict=True):
+        units += [UnitSpec(M, 0, *a), UnitSpec(M, 1, *b)]
+    res = run_battles([units], p0, p1, progress=False)
+    assert int(res.winner[0]) == winner
+    assert sorted(h for h in res.unit_hp[0] if h > 0) == sorted(survivor_hp)
+    assert (int(res.turns[0]), int(res.final_time[0])) == (turns, final_time)
