@@ -38,10 +38,12 @@ class BattleConfig:
     """Play a series of scripted battles and print a win-rate table."""
 
     p0: str = "attack-closest"
-    """Script of player 0 (ours, the left army): attack-closest, attack-weakest, attack-dps, nokdps,
-    kiter, kiter-dps, kiter-nokdps, cluster, random or attack-weakest-global."""
+    """Player 0 (ours, the left army): a script (attack-closest, attack-weakest, attack-dps, nokdps,
+    kiter, kiter-dps, kiter-nokdps, cluster, random, attack-weakest-global) or a search player
+    spec: uct, abcd or pgs with options, e.g. 'uct:time_ms=40,c=1.6' or 'uct:script=attack-closest'
+    (the paper's UCT_c); see hybridmarl.search.base for every option."""
     p1: str = "attack-weakest"
-    """Script of player 1 (the enemy, the right army)."""
+    """Player 1 (the enemy, the right army): a script or a search player spec."""
     scenario: str | None = "m5v5"
     """Named scenario: m<A>v<B> (Marines, armies in contact) or m<A>v<B>-apart (disks 400 px
     apart, sparcraft.md §6.2). Ignored when --states or --scenario-file is given."""
@@ -130,18 +132,42 @@ def _load_map(path: str | None):
         raise InputError(f"{path}: {e}") from None
 
 
+def _is_script(spec: str) -> bool:
+    from hybridmarl.engine.scripts import canonical_name
+
+    try:
+        canonical_name(spec)
+    except KeyError:
+        return False
+    return True
+
+
+def _check_player_spec(spec: str) -> None:
+    """Validate a search-player spec such as ``uct:time_ms=40`` (one-line InputError)."""
+    from hybridmarl.engine.scenarios import InputError
+    from hybridmarl.engine.scripts import SCRIPTS
+
+    try:
+        from hybridmarl.search import make_player
+
+        make_player(spec)
+    except ValueError as e:
+        msg = str(e).splitlines()[0] if str(e) else f"bad player {spec!r}"
+        if spec.split(":")[0].strip().lower() not in ("uct", "uct-cd", "uctcd", "abcd", "ab", "alphabeta", "alpha-beta", "pgs", "portfolio"):
+            msg = f"unknown script {spec!r} (scripts: {', '.join(SCRIPTS)}; search players: uct, abcd, pgs)"
+        raise InputError(msg) from None
+
+
 def run_battle(cfg: BattleConfig) -> int:
     from hybridmarl.engine.battle import run_battles, write_json_atomic
     from hybridmarl.engine.scenarios import InputError, load_states_file, resolve_scenario
-    from hybridmarl.engine.scripts import canonical_name
     from hybridmarl.engine.state import make_rules
 
     try:
-        for s in (cfg.p0, cfg.p1):
-            try:
-                canonical_name(s)
-            except KeyError as e:
-                raise InputError(str(e.args[0])) from None
+        search = [not _is_script(s) for s in (cfg.p0, cfg.p1)]
+        for s, is_search in zip((cfg.p0, cfg.p1), search, strict=True):
+            if is_search:
+                _check_player_spec(s)
         if cfg.n < 1:
             raise InputError("--n must be at least 1")
         if cfg.batch_size < 1:
@@ -167,9 +193,20 @@ def run_battle(cfg: BattleConfig) -> int:
     except InputError as e:
         return _fail(str(e))
 
-    results = [run_battles(states, cfg.p0, cfg.p1, seed=cfg.seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)]
+    if any(search):
+        # Search players decide on the host, turn by turn (hybridmarl.search.runner).
+        from hybridmarl.search import run_player_battles
+
+        def play(a: str, b: str):
+            return run_player_battles(states, a, b, seed=cfg.seed, rules=rules, progress=cfg.progress)
+    else:
+
+        def play(a: str, b: str):
+            return run_battles(states, a, b, seed=cfg.seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)
+
+    results = [play(cfg.p0, cfg.p1)]
     if cfg.swap:
-        results.append(run_battles(states, cfg.p1, cfg.p0, seed=cfg.seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress))
+        results.append(play(cfg.p1, cfg.p0))
     _print_table(label, results)
     if cfg.out:
         doc = results[0].to_document()
@@ -256,13 +293,20 @@ def main(argv: list[str] | None = None) -> int:
         "battle": (BattleConfig, run_battle),
         "trace": (TraceConfig, run_trace),
         "bench": None,
+        # The learners (hybridmarl.algos.cli): raw args, parsed there.
+        "train": None,
+        "eval": None,
+        "demos": None,
     }
     if not args or args[0] in ("-h", "--help"):
         print(
-            "usage: hybridmarl {battle,trace,bench} ...\n\n"
+            "usage: hybridmarl {battle,trace,bench,train,eval,demos} ...\n\n"
             "  battle        play a scripted battle series and print a win-rate table\n"
             "  trace         print a turn-by-turn trace of one battle\n"
-            "  bench engine  engine throughput benchmark (JSON)\n\n"
+            "  bench engine  engine throughput benchmark (JSON)\n"
+            "  train         train a learner (--algo hybrid|bc, --preset paper|quick|...)\n"
+            "  eval          evaluate a trained policy or a script (W, R with 95% CIs)\n"
+            "  demos         record / inspect demonstration datasets (collect, info)\n\n"
             "Run 'hybridmarl COMMAND --help' for the options of a command."
         )
         return 0 if args else EXIT_BAD_INPUT
@@ -272,8 +316,14 @@ def main(argv: list[str] | None = None) -> int:
             return _fail("usage: hybridmarl bench engine [options]")
         cfg = tyro.cli(BenchEngineConfig, args=rest[1:], prog="hybridmarl bench engine")
         return run_bench_engine(cfg)
+    if cmd in ("train", "eval", "demos"):
+        from hybridmarl.algos import cli as algos_cli
+
+        if cmd == "eval":
+            return algos_cli.run_eval(tyro.cli(algos_cli.EvalConfig, args=rest, prog="hybridmarl eval"))
+        return algos_cli.run_train(rest) if cmd == "train" else algos_cli.run_demos(rest)
     if cmd not in commands or commands[cmd] is None:
-        return _fail(f"unknown command {cmd!r} (commands: battle, trace, bench)")
+        return _fail(f"unknown command {cmd!r} (commands: {', '.join(commands)})")
     cls, fn = commands[cmd]  # type: ignore[misc]
     cfg = tyro.cli(cls, args=rest, prog=f"hybridmarl {cmd}")
     return fn(cfg)

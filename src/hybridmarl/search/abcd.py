@@ -31,7 +31,8 @@ nokdps+kiter-dps, playouts nokdps/nokdps, Alternate, no opponent model, fallback
 Deviations from SparCraft
 -------------------------
 - **Young-brothers-wait leaf batching**: at a node whose children are leaves the eldest child is
-  evaluated alone, then the rest in batches of ``batch`` (one engine call each), before the
+  evaluated alone, then the rest in batches of ``batch`` (one engine call each; ``auto``: as
+  UCT's, at most ``max_children``), before the
   alpha-beta loop consumes them in order. Values, cuts, best moves and the node count are those
   of the serial search; only playouts of children after a cut are wasted (``stats.playouts``
   counts every playout run). Children that are inner nodes are generated in one batched call.
@@ -49,16 +50,16 @@ import hashlib
 import time
 from typing import Any
 
-import jax
 import numpy as np
 
-from hybridmarl.search import kernels as K
 from hybridmarl.search.base import (
     DeviceArgs,
+    Engine,
     SearchPlayer,
     SearchStats,
     deadline_from,
-    info_for,
+    eval_params,
+    resolve_batch,
     unique,
 )
 from hybridmarl.search.moves import child_moves
@@ -69,6 +70,7 @@ BETA0 = (10_000_000, -999_999)
 TT_SCAN = 10
 
 Score = tuple[int, int]  # (value, -moves): larger is better for the max player
+LeafValue = tuple[int, bool, int, int]  # value, both dead, path MOVEs, playout MOVEs
 
 
 class _Timeout(Exception):
@@ -159,31 +161,28 @@ class ABCDPlayer(SearchPlayer):
         self.info_scripts = unique(self.ordering + ((self.model,) if self.model else ()) + (self.fallback_script,))
         self.playout = (o["playout0"], o["playout1"])
         self.tt = TranspositionTable(o["tt_size"]) if o["tt"] else None
+        #: Prefetch the eldest leaves of depth-2 nodes (``_Search._prefetch_eldest``); switching
+        #: it off changes the engine calls made, never the decisions.
+        self.prefetch = True
 
     def reset(self, seed: int) -> None:
         super().reset(seed)
         self.tt = TranspositionTable(self.options["tt_size"]) if self.options["tt"] else None
 
-    # -- compiled programs -------------------------------------------------------------------
-    def _leaf_fn(self, dev: DeviceArgs, k: int):
-        return K.step_fn(dev.num_slots, k, None, self.options["eval"], self.playout, dev.rules_key)
-
-    def _expand_fn(self, dev: DeviceArgs):
-        return K.step_fn(dev.num_slots, self.options["max_children"], self.info_scripts, None, self.playout, dev.rules_key)
+    def _engine(self, dev: DeviceArgs, stats: SearchStats) -> Engine:
+        return Engine(self, dev, self.info_scripts, self.playout, stats)
 
     def _warmup(self, root: np.ndarray, dev: DeviceArgs) -> None:
-        n = dev.num_slots
-        info_for(dev, self.info_scripts)(self.key(), root[None], *dev.args)
-        for k, fn in ((1, self._leaf_fn(dev, 1)), (self.options["batch"], self._leaf_fn(dev, self.options["batch"])), (self.options["max_children"], self._expand_fn(dev))):
-            out = fn(self.key(), np.repeat(root[None], k, 0), np.zeros((k, 2, n), np.int32), np.zeros((k, 2), bool), np.zeros(k, bool), np.zeros(k, np.int32), *dev.args)
-            jax.block_until_ready(out)
+        o = self.options
+        self._engine(dev, SearchStats()).warmup(root, [1, resolve_batch(o["batch"], dev.num_slots, o["max_children"]), o["max_children"]])
 
     # -- search ------------------------------------------------------------------------------
     def _search(self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float) -> np.ndarray:
         o = self.options
-        rinfo = jax.device_get(info_for(dev, self.info_scripts)(self.key(), root[None], *dev.args))
-        stats.calls += 1
-        root_node = _Node(root, rinfo, 0, 0)
+        n = dev.num_slots
+        engine = self._engine(dev, stats)
+        rinfo = engine.run(1, root[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), p, 0)
+        root_node = _Node(root, rinfo["info"], 0, 0)
         acting = root_node["acting"][p]
         fb = root_node["scripts"][self.info_scripts.index(self.fallback_script), p]
         fallback = np.where(acting, fb, 0).astype(np.int32)
@@ -191,7 +190,7 @@ class ABCDPlayer(SearchPlayer):
             stats.fallback = True
             return fallback
 
-        search = _Search(self, dev, p, stats, deadline_from(t0, o["time_ms"]), int(o["nodes"]))
+        search = _Search(self, engine, p, stats, deadline_from(t0, o["time_ms"]), int(o["nodes"]))
         best: np.ndarray | None = None
         for d in range(1, int(o["max_depth"]) + 1):
             search.root_depth = d
@@ -212,19 +211,20 @@ class ABCDPlayer(SearchPlayer):
 class _Search:
     """One decision's alpha-beta state (counters, budget, compiled calls)."""
 
-    def __init__(self, player: ABCDPlayer, dev: DeviceArgs, p: int, stats: SearchStats, deadline: float, max_nodes: int):
+    def __init__(self, player: ABCDPlayer, engine: Engine, p: int, stats: SearchStats, deadline: float, max_nodes: int):
         self.pl = player
         self.o = player.options
-        self.dev = dev
+        self.engine = engine
+        self.dev = engine.dev
         self.p = p
         self.stats = stats
         self.deadline = deadline
         self.max_nodes = max_nodes
         self.root_depth = 1
         self.tt_cuts = 0
-        self.leaf1 = player._leaf_fn(dev, 1)
-        self.leaf_b = player._leaf_fn(dev, int(self.o["batch"]))
-        self.expand_fn = player._expand_fn(dev)
+        self.cap, self.use_ltd = eval_params(self.o["eval"])
+        self.batch = resolve_batch(self.o["batch"], engine.dev.num_slots, self.o["max_children"])
+        stats.extra["batch"] = self.batch
 
     def _enter(self) -> None:
         """``nodesExpanded++`` and the budget test at every node."""
@@ -247,19 +247,11 @@ class _Search:
             return int(self.pl.rng.integers(2))
         return 0 if movers[0] else 1
 
-    def _call(self, fn, k: int, node: _Node, rows: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, np.ndarray]:
-        """Apply each (actions [2, U], mask [2]) to ``node``'s state, padded to batch ``k``."""
-        n = self.dev.num_slots
-        m = len(rows)
-        base = np.broadcast_to(node.vec, (k, node.vec.shape[0]))
-        actions = np.zeros((k, 2, n), np.int32)
-        mask = np.zeros((k, 2), bool)
-        for j, (a, mk) in enumerate(rows):
-            actions[j], mask[j] = a, mk
-        actions[m:], mask[m:] = actions[0], mask[0]
-        out = fn(self.pl.key(), base, actions, mask, np.ones(k, bool), np.full(k, self.p, np.int32), *self.dev.args)
-        self.stats.calls += 1
-        return jax.device_get(out)
+    def _call(self, k: int, node: _Node, rows: list[tuple[np.ndarray, np.ndarray]], cap: int) -> dict[str, Any]:
+        """Apply each (actions [2, U], mask [2]) to ``node``'s state in one call of batch ``k``."""
+        actions = np.stack([a for a, _ in rows])
+        mask = np.stack([mk for _, mk in rows])
+        return self.engine.run(k, node.vec, actions, mask, np.ones(len(rows), bool), self.p, cap, self.use_ltd)
 
     def _score(self, value: int, both_dead: bool, path_moves: int, playout_moves: int) -> Score:
         if both_dead:
@@ -268,7 +260,18 @@ class _Search:
             return (int(value), -(2 * path_moves + int(playout_moves)))
         return (int(value), -path_moves)
 
-    def alpha_beta(self, node: _Node, depth: int, last: int, prev_sim: np.ndarray | None, alpha: Score, beta: Score) -> tuple[Score, np.ndarray | None]:
+    def alpha_beta(
+        self,
+        node: _Node,
+        depth: int,
+        last: int,
+        prev_sim: np.ndarray | None,
+        alpha: Score,
+        beta: Score,
+        eldest: tuple[np.ndarray, LeafValue] | None = None,
+    ) -> tuple[Score, np.ndarray | None]:
+        """SparCraft's ``alphaBeta``. ``eldest``: a prefetched (move, value) of this node's first
+        child when that child is a leaf (see ``_prefetch_eldest``)."""
         self._enter()
         p = self.p
         movers = node["movers"]
@@ -320,26 +323,22 @@ class _Search:
 
         if both and prev_sim is None and depth != 1:
             # First mover of a simultaneous pair: pass the vector down without applying it.
-            for vec in vecs:
-                val, resp = self.alpha_beta(node, depth - 1, ptm, vec, alpha, beta)
+            pre = self._prefetch_eldest([(node, ptm, v) for v in vecs]) if depth == 2 else {}
+            for i, vec in enumerate(vecs):
+                val, resp = self.alpha_beta(node, depth - 1, ptm, vec, alpha, beta, pre.get(i))
                 update(val, vec, resp)
                 if alpha >= beta:
                     break
         else:
-            rows = []
-            for vec in vecs:
-                a = np.zeros((2, self.dev.num_slots), np.int32)
-                mk = np.zeros(2, bool)
-                a[ptm], mk[ptm] = vec, True
-                if prev_sim is not None:
-                    a[1 - ptm], mk[1 - ptm] = prev_sim, True
-                rows.append((a, mk))
+            rows = self._leaf_rows(vecs, ptm, prev_sim)
             if depth - 1 <= 0:
-                self._leaf_loop(node, vecs, rows, update, lambda: alpha >= beta)
+                self._leaf_loop(node, vecs, rows, update, lambda: alpha >= beta, eldest)
             else:
-                out = self._call(self.expand_fn, self.o["max_children"], node, rows)
+                out = self._call(self.o["max_children"], node, rows, 0)
+                kids = [_Node(out["child"][i], out["info"], i, node.path_moves + int(out["step_moves"][i, p])) for i in range(len(vecs))]
+                pre = self._prefetch_eldest([(c, ptm, None) for c in kids]) if depth == 2 else {}
                 for i, vec in enumerate(vecs):
-                    child = _Node(out["child"][i], out["info"], i, node.path_moves + int(out["step_moves"][i, p]))
+                    child = kids[i]
                     if child["terminal"]:
                         # A terminal child is a leaf: its playout plays no turn.
                         self._enter()
@@ -348,7 +347,7 @@ class _Search:
                         val = self._score(ev, both_dead, child.path_moves, 0)
                         resp = None
                     else:
-                        val, resp = self.alpha_beta(child, depth - 1, ptm, None, alpha, beta)
+                        val, resp = self.alpha_beta(child, depth - 1, ptm, None, alpha, beta, pre.get(i))
                     update(val, vec, resp)
                     if alpha >= beta:
                         break
@@ -362,28 +361,78 @@ class _Search:
                 tt.save(h1, TTEntry(h2, value, depth, kind, ptm, best_move, best_response))
         return (alpha if is_max else beta), best_move
 
-    def _leaf_loop(self, node: _Node, vecs, rows, update, cut) -> None:
-        """Children that are leaves: eldest alone, then the rest in batches, consumed in order."""
-        p = self.p
-        batch = int(self.o["batch"])
-        values: list[tuple[int, bool, int, int] | None] = [None] * len(vecs)
+    def _leaf_rows(self, vecs: list[np.ndarray], ptm: int, prev_sim: np.ndarray | None) -> list[tuple[np.ndarray, np.ndarray]]:
+        rows = []
+        for vec in vecs:
+            a = np.zeros((2, self.dev.num_slots), np.int32)
+            mk = np.zeros(2, bool)
+            a[ptm], mk[ptm] = vec, True
+            if prev_sim is not None:
+                a[1 - ptm], mk[1 - ptm] = prev_sim, True
+            rows.append((a, mk))
+        return rows
+
+    def _leaf_values(self, bases: list[np.ndarray], rows: list[tuple[np.ndarray, np.ndarray]], path_moves: list[int], k: int) -> list[LeafValue]:
+        """Evaluate leaves (base state, joint action) in one engine call of batch ``k``."""
+        base = np.stack(bases) if len(bases) > 1 else bases[0]  # one [L] state: shared by all rows
+        actions = np.stack([a for a, _ in rows])
+        mask = np.stack([mk for _, mk in rows])
+        out = self.engine.run(k, base, actions, mask, np.ones(len(rows), bool), self.p, self.cap, self.use_ltd)
+        if self.o["eval"] == "playout":
+            self.stats.playouts += len(rows)
+        return [
+            (int(out["value"][j]), bool(out["both_dead"][j]), path_moves[j] + int(out["step_moves"][j, self.p]), int(out["playout_moves"][j]))
+            for j in range(len(rows))
+        ]
+
+    def _prefetch_eldest(self, kids: list[tuple[_Node, int, np.ndarray | None]]) -> dict[int, tuple[np.ndarray, LeafValue]]:
+        """Young brothers wait, one level up: before a depth-2 node searches its children, the
+        first (eldest) leaf of every child is evaluated in one batched call.
+
+        ``kids``: (state, the parent's player to move, the parent's vector passed down when the
+        child is the second mover of a simultaneous pair, else None). Only when a child's first
+        child is known without drawing random numbers: it is the first ordering script's (or
+        the opponent model's) move, which SparCraft puts first whatever the shuffle and the
+        transposition table say. Values are those the serial search would compute; a prefetched
+        leaf whose parent is cut off or answered from the table is wasted work only.
+        """
+        if not self.pl.prefetch or not (self.pl.ordering or self.pl.model) or self.o["player_to_move"] == "random":
+            return {}
+        want: list[tuple[int, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray], int]] = []
+        for i, (child, last, prev_sim) in enumerate(kids):
+            if child["terminal"]:
+                continue
+            ptm = self._player_to_move(child, 1, last, prev_sim is None)
+            scripts = child["scripts"]
+            if self.pl.model and ptm != self.p:
+                first = scripts[self.pl.info_scripts.index(self.pl.model), ptm]
+            else:
+                first = scripts[self.pl.info_scripts.index(self.pl.ordering[0]), ptm]
+            first = np.where(child["acting"][ptm], first, 0).astype(np.int32)
+            row = self._leaf_rows([first], ptm, prev_sim)[0]
+            want.append((i, first, child.vec, row, child.path_moves))
+        if len(want) < 2:
+            return {}
+        k = self.o["max_children"]
+        vals = self._leaf_values([w[2] for w in want], [w[3] for w in want], [w[4] for w in want], k)
+        return {w[0]: (w[1], v) for w, v in zip(want, vals, strict=True)}
+
+    def _leaf_loop(self, node: _Node, vecs, rows, update, cut, eldest: tuple[np.ndarray, LeafValue] | None) -> None:
+        """Children that are leaves: eldest alone (or prefetched), then the rest in batches,
+        consumed in order with SparCraft's node count and budget test."""
+        batch = self.batch
+        values: list[LeafValue | None] = [None] * len(vecs)
+        if eldest is not None and np.array_equal(eldest[0], vecs[0]):
+            values[0] = eldest[1]
 
         def fill(i: int) -> None:
             if i == 0 or batch == 1:
-                idx = [i]
-                fn, k = self.leaf1, 1
+                idx, k = [i], 1
             else:
-                idx = list(range(i, min(i + batch, len(vecs))))
-                fn, k = self.leaf_b, batch
-            out = self._call(fn, k, node, [rows[j] for j in idx])
-            self.stats.playouts += len(idx) if self.o["eval"] == "playout" else 0
-            for j, jj in enumerate(idx):
-                values[jj] = (
-                    int(out["value"][j]),
-                    bool(out["both_dead"][j]),
-                    node.path_moves + int(out["step_moves"][j, p]),
-                    int(out["playout_moves"][j]),
-                )
+                idx, k = list(range(i, min(i + batch, len(vecs)))), batch
+            vals = self._leaf_values([node.vec], [rows[j] for j in idx], [node.path_moves] * len(idx), k)
+            for j, v in zip(idx, vals, strict=True):
+                values[j] = v
 
         for i, vec in enumerate(vecs):
             self._enter()

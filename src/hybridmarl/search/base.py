@@ -31,8 +31,42 @@ Keyword ``options`` override the string's. Examples::
     abcd:time_ms=0,nodes=500             # deterministic budget
     pgs:time_ms=0,portfolio=nokdps+kiter-dps,iterations=1,responses=0
 
-Every option, its default and where the default comes from is listed in ``UCT_OPTIONS``,
-``ABCD_OPTIONS`` and ``PGS_OPTIONS`` (printed by :func:`describe_options`).
+Options (defaults from SparCraft; sections of ``shared/reference/sparcraft.md``)::
+
+    common to uct and abcd
+      max_children=20          children per node (sample config, §4.1, §4.2); alias children=
+      ordering=nokdps+kiter-dps ScriptFirst ordering scripts ('none': plain odometer) (§3, §4.1)
+      playout0=nokdps          player 0's playout script (P0Script, sample config) (§4.1)
+      playout1=nokdps          player 1's playout script (P1Script); playout=X sets both
+      eval=playout             leaf evaluation: playout | ltd2 | ltd (§2.9)
+      player_to_move=alternate first mover below the root: alternate | not-alternate | random
+      opponent_model=none      script the opponent is assumed to play (one child at its nodes)
+    uct
+      time_ms=40               wall-clock budget per decision, 0 = none (§4.2, CIG 2013)
+      traversals=5000          traversal cap (sample config, §4.2)
+      c=1.6                    UCB exploration constant (sample config, §4.2)
+      root_select=most-visited most-visited | highest-value (SparCraft's default: most visited)
+      batch=auto               leaves per engine call (leaf parallelism; 1 = serial UCT)
+    abcd
+      time_ms=40               wall-clock budget per decision, 0 = none (sample config, §4.1)
+      nodes=0                  node budget (deterministic), 0 = none; needs time_ms or nodes
+      max_depth=50             iterative deepening limit (SearchExperiment, §4.1)
+      tt=true, tt_size=100000  transposition table (Constants::Transposition_Table_Size)
+      fallback=nokdps          move when depth 1 does not finish (§4.1)
+      batch=auto               leaf playouts per engine call after the eldest (1 = serial)
+    pgs
+      time_ms=40               budget per decision, checked before each unit, 0 = none (§4.3)
+      playouts=0               playout budget (deterministic), 0 = none
+      portfolio=nokdps+kiter-dps  script portfolio (hard-coded in SparCraft, §4.3)
+      enemy_seed=nokdps        enemy script while seeding (§4.3)
+      iterations=1, responses=0, playout_turns=100   I, R and the playout cap (§4.3, §2.8)
+      lookahead=1              1: one unit per engine call; 2: speculative unit pairs (same result)
+    any search
+      script=NAME              shorthand: ordering and playouts (and abcd's fallback; pgs's
+                               portfolio and enemy seed) all set to NAME
+
+``UCT_OPTIONS``, ``ABCD_OPTIONS`` and ``PGS_OPTIONS`` hold the same table with the source of
+every default; :func:`describe_options` prints it.
 """
 
 from __future__ import annotations
@@ -56,6 +90,7 @@ class SearchStats:
 
     algorithm: str = ""
     ms: float = 0.0  # wall-clock time of the decision
+    cpu_ms: float = 0.0  # CPU time of this process during the decision (all threads)
     traversals: int = 0  # UCT: completed traversals
     nodes: int = 0  # ABCD: nodes expanded (SparCraft's count); UCT: tree nodes created
     playouts: int = 0  # playouts actually run (batching may run more than a serial search)
@@ -65,7 +100,7 @@ class SearchStats:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
-        d = {k: getattr(self, k) for k in ("algorithm", "ms", "traversals", "nodes", "playouts", "depth", "calls", "fallback")}
+        d = {k: getattr(self, k) for k in ("algorithm", "ms", "cpu_ms", "traversals", "nodes", "playouts", "depth", "calls", "fallback")}
         d.update(self.extra)
         return d
 
@@ -92,7 +127,7 @@ class Option:
     """One player option: its name, kind, default, and the source of the default."""
 
     name: str
-    kind: str  # int | float | bool | script | scripts | script? | choice
+    kind: str  # int | float | bool | script | scripts | script? | choice | batch
     default: Any
     help: str
     choices: tuple[str, ...] = ()
@@ -119,7 +154,7 @@ UCT_OPTIONS: tuple[Option, ...] = (
     _opt("c", "float", 1.6, "UCB exploration constant (sample config 1.6, §4.2)", minimum=0),
     *_COMMON_SEARCH,
     _opt("root_select", "choice", "most-visited", "root move: most visited child (SparCraft default) or highest UCB value", choices=("most-visited", "highest-value")),
-    _opt("batch", "int", 16, "leaf-parallel batch: leaves evaluated per engine call (virtual loss); 1 = SparCraft's serial UCT (our deviation)", minimum=1),
+    _opt("batch", "batch", "auto", "leaf-parallel batch: leaves evaluated per engine call (virtual loss); 1 = SparCraft's serial UCT; auto = by army size, see auto_batch (our deviation)"),
 )
 
 ABCD_OPTIONS: tuple[Option, ...] = (
@@ -130,7 +165,7 @@ ABCD_OPTIONS: tuple[Option, ...] = (
     _opt("tt", "bool", True, "transposition table (100,000 entries, scan 10, kept across decisions of a game, §4.1)"),
     _opt("tt_size", "int", 100_000, "transposition table entries (Constants::Transposition_Table_Size)", minimum=16),
     _opt("fallback", "script", "nokdps", "move when depth 1 does not complete (SparCraft: NOKDPS, §4.1)"),
-    _opt("batch", "int", 20, "leaf playouts per engine call after the eldest child (young-brothers-wait batching); 1 = serial", minimum=1),
+    _opt("batch", "batch", "auto", "leaf playouts per engine call after the eldest child (young-brothers-wait batching); 1 = serial; auto = by army size, at most max_children (our deviation)"),
 )
 
 PGS_OPTIONS: tuple[Option, ...] = (
@@ -141,6 +176,7 @@ PGS_OPTIONS: tuple[Option, ...] = (
     _opt("iterations", "int", 1, "improvement passes I (default 1, §4.3)", minimum=1),
     _opt("responses", "int", 0, "response rounds R (default 0, §4.3)", minimum=0),
     _opt("playout_turns", "int", K.PGS_PLAYOUT_TURNS, "playout cap; the loop runs while rounds <= cap, i.e. up to cap+1 turns (§2.8)", minimum=1),
+    _opt("lookahead", "lookahead", 1, "1: one unit's candidates per engine call (SparCraft's order); 2: a pair of units per call, speculatively, same result (measured: at most ~10% faster)"),
 )
 
 ALGORITHMS: dict[str, tuple[Option, ...]] = {"uct": UCT_OPTIONS, "abcd": ABCD_OPTIONS, "pgs": PGS_OPTIONS}
@@ -230,6 +266,14 @@ def _convert(opt: Option, value: Any, where: str) -> Any:
         else:
             raise ValueError(f"{what}: expected script names joined by '+', got {value!r}")
         v = tuple(_script_name(s, what) for s in items)
+    elif kind == "lookahead":
+        v = _convert(Option(opt.name, "int", None, "", minimum=1), value, where)
+        if v > 2:
+            raise ValueError(f"{what}: must be 1 or 2, got {value!r}")
+    elif kind == "batch":
+        if isinstance(value, str) and value.strip().lower() == "auto":
+            return "auto"
+        v = _convert(Option(opt.name, "int", None, "", minimum=1), value, where)
     elif kind == "choice":
         s = str(value).lower().replace("_", "-")
         if s not in opt.choices:
@@ -314,7 +358,7 @@ class ScriptPlayer:
         t0 = time.perf_counter()
         self._key, sub = jax.random.split(self._key)
         fn = K.script_fn(self.script, K.rules_static(rules))
-        out = np.asarray(fn(sub, state, rules.walkable, p), np.int32)
+        out = np.asarray(fn(sub, state, rules.walkable)[p], np.int32)
         self._stats = SearchStats(algorithm="script", ms=(time.perf_counter() - t0) * 1e3, calls=1)
         return out
 
@@ -338,7 +382,7 @@ class SearchPlayer:
     def __init__(self, options: dict[str, Any], name: str):
         self.options = options
         self.name = name
-        self.rng = np.random.default_rng(0)
+        self.reset(0)
         self._stats: SearchStats | None = None
 
     @property
@@ -346,21 +390,26 @@ class SearchPlayer:
         return self._stats
 
     def reset(self, seed: int) -> None:
-        self.rng = np.random.default_rng(seed)
+        # Two streams: move shuffles / random first movers, and keys for the compiled calls (only
+        # the ``random`` script uses them), so batching choices never shift the shuffles.
+        self.rng = np.random.default_rng([int(seed), 0])
+        self._key_rng = np.random.default_rng([int(seed), 1])
 
     def key(self) -> np.ndarray:
-        """A fresh raw PRNG key (uint32 [2]) from the player's generator."""
-        return self.rng.integers(0, 2**32, size=2, dtype=np.uint32)
+        """A fresh raw PRNG key (uint32 [2]) for a compiled call."""
+        return self._key_rng.integers(0, 2**32, size=2, dtype=np.uint32)
 
     def decide(self, state: GameState, rules: Rules, p: int) -> np.ndarray:
         if p not in (0, 1):
             raise ValueError(f"player index must be 0 or 1, got {p!r}")
         t0 = time.perf_counter()
+        c0 = time.process_time()
         root, consts = K.pack_state(state)
         dev = DeviceArgs(consts, rules)
         stats = SearchStats(algorithm=self.algorithm)
         move = self._search(root, dev, p, stats, t0)
         stats.ms = (time.perf_counter() - t0) * 1e3
+        stats.cpu_ms = (time.process_time() - c0) * 1e3
         self._stats = stats
         return np.asarray(move, np.int32)
 
@@ -378,21 +427,97 @@ class SearchPlayer:
         raise NotImplementedError
 
 
+def auto_batch(num_slots: int) -> int:
+    """Playouts per engine call for ``batch=auto``, by unit slots per side. A batched playout
+    costs about as much as one serial playout for small armies (call overhead dominates) but
+    grows with the batch for large ones, where a big batch would overrun a 40 ms budget by
+    several times. Measured on the 2-core CI machine (``bench/search.py``)."""
+    if num_slots <= 12:
+        return 32
+    if num_slots <= 24:
+        return 16
+    if num_slots <= 40:
+        return 8
+    return 4
+
+
+def resolve_batch(value: int | str, num_slots: int, cap: int | None = None) -> int:
+    b = auto_batch(num_slots) if value == "auto" else int(value)
+    return max(1, min(b, cap)) if cap is not None else b
+
+
 def deadline_from(t0: float, time_ms: float) -> float:
     """Absolute perf_counter deadline (inf when there is no time budget)."""
     return t0 + time_ms / 1e3 if time_ms > 0 else float("inf")
 
 
-def root_info(player: SearchPlayer, root: np.ndarray, dev: DeviceArgs, scripts: tuple[str, ...], stats: SearchStats) -> dict[str, np.ndarray]:
-    """Node info of the root state (batch of one), as host arrays without the batch axis."""
-    fn = info_for(dev, scripts)
-    out = jax.device_get(fn(player.key(), root[None], *dev.args))
-    stats.calls += 1
-    return {k: v[0] for k, v in out.items()}
+def eval_params(method: str) -> tuple[int, bool]:
+    """(playout cap, use LTD) of an evaluation method: a 200-turn playout scored by LTD2, or the
+    state's own LTD2 / LTD (sparcraft.md §2.9)."""
+    if method == "playout":
+        return K.PLAYOUT_TURNS, False
+    return 0, method == "ltd"
 
 
-def info_for(dev: DeviceArgs, scripts: tuple[str, ...]) -> Callable:
-    return K.info_fn(dev.num_slots, 1, scripts, dev.rules_key)
+class Engine:
+    """The compiled search program (``kernels.search_fn``) of one decision: pads every call to
+    a fixed batch size, so each size compiles once, and counts the calls."""
+
+    def __init__(self, player: SearchPlayer, dev: DeviceArgs, info_scripts: tuple[str, ...], playout_scripts: tuple[str, str], stats: SearchStats):
+        self.player = player
+        self.dev = dev
+        self.info_scripts = info_scripts
+        self.playout_scripts = playout_scripts
+        self.stats = stats
+
+    def fn(self, k: int) -> Callable:
+        return K.search_fn(self.dev.num_slots, k, self.info_scripts, self.playout_scripts, self.dev.rules_key)
+
+    def run(
+        self,
+        k: int,
+        base: np.ndarray,
+        actions: np.ndarray,
+        mask: np.ndarray,
+        do_step: np.ndarray,
+        player: int,
+        cap: int,
+        use_ltd: bool = False,
+    ) -> dict[str, Any]:
+        """Run ``m <= k`` entries (leading axis of ``actions``; ``base`` [m, L] or one [L] state
+        for all) padded to ``k``; returns host arrays with ``k`` rows (the first ``m`` are real)."""
+        m = actions.shape[0]
+        if base.ndim == 1:
+            base = np.broadcast_to(base, (k, base.shape[0]))
+        elif m < k:
+            base = np.concatenate([base, np.broadcast_to(base[:1], (k - m, base.shape[1]))])
+        if m < k:
+            pad = k - m
+            actions = np.concatenate([actions, np.broadcast_to(actions[:1], (pad, *actions.shape[1:]))])
+            mask = np.concatenate([mask, np.broadcast_to(mask[:1], (pad, 2))])
+            do_step = np.concatenate([do_step, np.broadcast_to(do_step[:1], (pad,))])
+        out = self.fn(k)(
+            self.player.key(), base, actions.astype(np.int32), mask.astype(bool), do_step.astype(bool),
+            np.full(k, player, np.int32), np.int32(cap), np.bool_(use_ltd), *self.dev.args,
+        )
+        self.stats.calls += 1
+        return jax.device_get(out)
+
+    def info(self, vec: np.ndarray) -> dict[str, np.ndarray]:
+        """Node info of one state (no turn played, no playout), without the batch axis."""
+        n = self.dev.num_slots
+        out = self.run(1, vec[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), 0, 0)
+        return {k: v[0] for k, v in out["info"].items()}
+
+    def warmup(self, vec: np.ndarray, sizes: Sequence[int]) -> None:
+        n = self.dev.num_slots
+        for k in sorted(set(sizes)):
+            jax.block_until_ready(
+                self.fn(k)(
+                    self.player.key(), np.repeat(vec[None], k, 0), np.zeros((k, 2, n), np.int32), np.zeros((k, 2), bool),
+                    np.zeros(k, bool), np.zeros(k, np.int32), np.int32(0), np.bool_(False), *self.dev.args,
+                )
+            )
 
 
 def unique(names: Sequence[str]) -> tuple[str, ...]:

@@ -8,24 +8,27 @@ flattened into one ``int32`` vector (``L = 18 U + 5``). The fields that never ch
 then one ``[K, L]`` array in and one out.
 
 Every function here is compiled once per static configuration (unit slots ``U``, batch ``K``,
-script names, evaluation method, static rules) and cached, so a search never recompiles between
-decisions. The shapes are fixed per call site (batches are padded), which keeps the number of
-compiled programs small.
+script names, static rules) and cached (``functools.lru_cache`` around ``jax.jit``), so a search
+never recompiles between decisions or games of the same shape. Callers pad every batch to a
+fixed size, and the playout cap and LTD/LTD2 choice are runtime arguments, so UCT and ABCD need
+one program per batch size (``K = 1`` and ``K = batch``; ABCD also ``K = max_children``).
 
 The kernels:
 
-- :func:`info_fn`: what the host needs to expand a node: who moves, which units act, the legal
-  actions, SparCraft's unit order, the moves of the ordering scripts for both sides, whether the
-  state is terminal, ``eval(p, LTD2)`` for both sides and a hash key (AB's transposition table).
-- :func:`step_fn`: apply a batch of joint actions to a batch of base states (``makeMoves`` for the
-  sides selected by a mask, then ``finishedMoving``), optionally followed by the node info of each
-  child and/or a leaf evaluation (``GameState::eval`` with ``Playout``, ``LTD2`` or ``LTD``).
+- :func:`search_fn`: apply a batch of joint actions to a batch of base states (``makeMoves`` for
+  the sides selected by a mask, then ``finishedMoving``), then return each child's *node info*
+  (what the host needs to expand it: who moves, which units act, the legal actions, SparCraft's
+  unit order, the ordering scripts' moves for both sides, whether it is terminal, ``eval(p,
+  LTD2)`` for both sides, a hash key for AB's transposition table) and its leaf evaluation
+  (``GameState::eval`` with ``Playout``, ``LTD2`` or ``LTD``; a playout cap of 0 skips the
+  playout, which is how node expansion and the root's info use the same program).
 - :func:`pgs_fn`: Portfolio Greedy Search playouts where every unit follows its own script
   (``Game::playIndividualScripts``), scored by ``eval(player, LTD2)`` of the final state.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -36,9 +39,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.engine import rules as R
-from hybridmarl.engine import units as UT
 from hybridmarl.engine.scripts import Script, get_script
-from hybridmarl.engine.state import MOVE, GameState, Rules
+from hybridmarl.engine.state import GameState, Rules
 
 #: Per-unit fields that change during a game, in packed order ([2, U] each).
 DYNAMIC_FIELDS = ("x", "y", "px", "py", "t_act", "last", "hp", "t_move", "t_attack")
@@ -48,8 +50,6 @@ NUM_SCALARS = 5  # time, turn, stale, prev_hp_sum[0], prev_hp_sum[1]
 PLAYOUT_TURNS = 200
 #: Portfolio Greedy Search playout cap; ``playIndividualScripts`` breaks when rounds > 100.
 PGS_PLAYOUT_TURNS = 100
-#: Hash material per unit: current x, y, timeCanAttack - now, timeCanMove - now, HP, type.
-HASH_FIELDS = 6
 
 EVAL_METHODS = ("playout", "ltd2", "ltd")
 
@@ -186,7 +186,7 @@ def _script_playout(
     rules: Rules,
     s0: Script,
     s1: Script,
-    cap: int,
+    cap: int | jax.Array,
     player: jax.Array,
     use_key: bool,
 ) -> tuple[GameState, jax.Array]:
@@ -219,27 +219,25 @@ def _leaf_value(
     state: GameState,
     rules: Rules,
     player: jax.Array,
-    method: str,
+    cap: jax.Array,
+    use_ltd: jax.Array,
     playout_scripts: tuple[Script, Script],
     use_key: bool,
 ) -> tuple[jax.Array, jax.Array, jax.Array]:
     """``GameState::eval(player, method)``: (value, MOVE count of ``player`` in the playout,
     both sides dead).
 
-    For ``playout`` the score is evalLTD2 of the playout's final state and the +-100000 bonus
-    looks at the state being evaluated (sparcraft.md §2.9); 0 when both sides are dead."""
+    ``Playout`` is a script playout of at most ``cap`` turns scored by evalLTD2 of its final state;
+    ``LTD2`` / ``LTD`` are ``cap = 0`` (the state itself) with ``use_ltd`` choosing the score. The
+    +-100000 bonus looks at the state being evaluated (sparcraft.md §2.9); 0 when both are dead."""
     dead = R.player_dead(state)
     me_dead = jnp.where(player == 0, dead[0], dead[1])
     en_dead = jnp.where(player == 0, dead[1], dead[0])
     bonus = jnp.where(en_dead & ~me_dead, 100000, jnp.where(me_dead & ~en_dead, -100000, 0))
-    if method == "playout":
-        final, moves = _script_playout(
-            key, state, rules, playout_scripts[0], playout_scripts[1], PLAYOUT_TURNS, player, use_key
-        )
-        score = R.ltd2(final)
-    else:
-        moves = jnp.int32(0)
-        score = R.ltd2(state) if method == "ltd2" else R.ltd(state)
+    final, moves = _script_playout(
+        key, state, rules, playout_scripts[0], playout_scripts[1], cap, player, use_key
+    )
+    score = jnp.where(use_ltd, R.ltd(final), R.ltd2(final))
     diff = jnp.where(player == 0, score[0] - score[1], score[1] - score[0])
     value = jnp.where(dead.all(), 0, diff + bonus).astype(jnp.int32)
     return value, jnp.where(dead.all(), 0, moves).astype(jnp.int32), dead.all()
@@ -249,73 +247,58 @@ def _leaf_value(
 
 
 @functools.lru_cache(maxsize=128)
-def info_fn(num_slots: int, batch: int, scripts: tuple[str, ...], rules_key: tuple) -> Callable:
-    """Jitted ``(key, packed [K, L], utype, uid, ltd, ltd2, walkable) -> info dict [K, ...]``."""
-    del num_slots, batch  # part of the cache key only: one compiled program per shape
-    fns = _scripts(scripts)
-
-    def one(key, vec, utype, uid, ltd, ltd2, walkable):
-        rules = _rules(walkable, rules_key)
-        state = unpack(vec, utype, uid, ltd, ltd2)
-        return _state_info(key, state, rules, fns)
-
-    def run(key, vecs, utype, uid, ltd, ltd2, walkable):
-        keys = jax.random.split(key, vecs.shape[0])
-        return jax.vmap(one, in_axes=(0, 0, None, None, None, None, None))(keys, vecs, utype, uid, ltd, ltd2, walkable)
-
-    return jax.jit(run)
-
-
-@functools.lru_cache(maxsize=128)
-def step_fn(
+def search_fn(
     num_slots: int,
     batch: int,
-    info_scripts: tuple[str, ...] | None,
-    eval_method: str | None,
+    info_scripts: tuple[str, ...],
     playout_scripts: tuple[str, str],
     rules_key: tuple,
 ) -> Callable:
-    """Jitted ``(key, base [K, L], actions [K, 2, U], mask [K, 2], do_step [K], player [K], utype,
-    uid, ltd, ltd2, walkable) -> dict`` with ``child`` [K, L] and ``step_moves`` [K, 2] (MOVE actions applied
-    per side), plus ``info`` of each child when ``info_scripts`` is not None, plus ``value`` and
-    ``playout_moves`` and ``both_dead`` [K] (``eval(player, eval_method)`` of each child) when
-    ``eval_method`` is set.
+    """The one compiled program of UCT and ABCD (and PGS's root info), per batch size ``K``.
 
-    ``mask[k, p]`` selects whose actions are applied (SparCraft applies only the first mover's
-    vector at a leaf FirstSim node); the other side's acting units do nothing this turn. Where
-    ``do_step[k]`` is False the base state itself is the child (no turn is played).
+    Jitted ``(key, base [K, L], actions [K, 2, U], mask [K, 2], do_step [K], player [K], cap [],
+    use_ltd [], utype, uid, ltd, ltd2, walkable) -> dict`` of host-bound arrays:
+
+    - ``child`` [K, L]: each base state after the joint ``actions`` (``makeMoves`` for the sides
+      selected by ``mask``, then ``finishedMoving``), or the base itself where ``do_step`` is
+      False. Masking one side reproduces SparCraft's leaf FirstSim node, which applies only the
+      first mover's vector (the other side's acting units do nothing this turn).
+    - ``step_moves`` [K, 2]: MOVE actions applied per side;
+    - ``info``: :func:`_state_info` of each child (``info_scripts``' moves for both sides);
+    - ``value``, ``playout_moves``, ``both_dead`` [K]: ``eval(player, ...)`` of each child by a
+      playout of at most ``cap`` turns (``cap`` 0: no playout, i.e. LTD2 / LTD of the child).
+
+    ``cap`` and ``use_ltd`` are runtime values, so node expansion (``cap`` 0) and leaf evaluation
+    share one program; only the batch size ``K`` makes a new one.
     """
-    del num_slots, batch
-    info_fns = _scripts(info_scripts) if info_scripts is not None else None
+    del num_slots, batch  # part of the cache key only: one compiled program per shape
+    info_fns = _scripts(info_scripts)
     pfns = _scripts(playout_scripts)
     pair = (pfns[0], pfns[1])
     use_key = "random" in playout_scripts
 
-    def one(key, vec, actions, mask, do_step, player, utype, uid, ltd, ltd2, walkable):
+    def one(key, vec, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable):
         rules = _rules(walkable, rules_key)
         state = unpack(vec, utype, uid, ltd, ltd2)
         ctx = R.turn_context(state, rules)
         acting = ctx.acting & mask[:, None] & do_step
-        stepped = R.apply_actions(state, ctx.replace(acting=acting), actions, rules)
+        stepped = R.apply_actions(state, dataclasses.replace(ctx, acting=acting), actions, rules)
         child = jax.tree.map(lambda a, b: jnp.where(do_step, a, b), stepped, state)
-        out: dict[str, Any] = {
+        k_info, k_eval = jax.random.split(key)
+        value, moves, both_dead = _leaf_value(k_eval, child, rules, player, cap, use_ltd, pair, use_key)
+        return {
             "child": _pack(child),
             "step_moves": jnp.sum(acting & _is_move(actions), axis=1).astype(jnp.int32),
+            "info": _state_info(k_info, child, rules, info_fns),
+            "value": value,
+            "playout_moves": moves,
+            "both_dead": both_dead,
         }
-        k_info, k_eval = jax.random.split(key)
-        if info_fns is not None:
-            out["info"] = _state_info(k_info, child, rules, info_fns)
-        if eval_method is not None:
-            value, moves, both_dead = _leaf_value(k_eval, child, rules, player, eval_method, pair, use_key)
-            out["value"] = value
-            out["playout_moves"] = moves
-            out["both_dead"] = both_dead
-        return out
 
-    def run(key, vecs, actions, mask, do_step, player, utype, uid, ltd, ltd2, walkable):
+    def run(key, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable):
         keys = jax.random.split(key, vecs.shape[0])
-        return jax.vmap(one, in_axes=(0, 0, 0, 0, 0, 0, None, None, None, None, None))(
-            keys, vecs, actions, mask, do_step, player, utype, uid, ltd, ltd2, walkable
+        return jax.vmap(one, in_axes=(0, 0, 0, 0, 0, 0, None, None, None, None, None, None, None))(
+            keys, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable
         )
 
     return jax.jit(run)
@@ -397,15 +380,17 @@ def apply_fn(rules_key: tuple) -> Callable:
 
 @functools.lru_cache(maxsize=64)
 def script_fn(name: str, rules_key: tuple) -> Callable:
-    """Jitted ``(key, state, walkable, p) -> int32 [U]``: one script decision (``p`` static)."""
+    """Jitted ``(key, state, walkable) -> int32 [2, U]``: the script's decision for both sides
+    (one program per script rather than one per side)."""
     script = get_script(name)
 
-    def run(key, state, walkable, p):
+    def run(key, state, walkable):
         rules = _rules(walkable, rules_key)
         ctx = R.turn_context(state, rules)
-        return script(key, state, ctx, p)
+        k0, k1 = jax.random.split(key)
+        return jnp.stack([script(k0, state, ctx, 0), script(k1, state, ctx, 1)])
 
-    return jax.jit(run, static_argnums=(3,))
+    return jax.jit(run)
 
 
 @functools.lru_cache(maxsize=16)
@@ -418,22 +403,20 @@ def result_fn() -> Callable:
     return jax.jit(run)
 
 
-def is_move_code(code: int) -> bool:
-    return R.MOVE_ACTIONS[0] <= code <= R.MOVE_ACTIONS[-1]
-
-
 __all__ = [
     "EVAL_METHODS",
-    "MOVE",
     "PGS_PLAYOUT_TURNS",
     "PLAYOUT_TURNS",
     "Consts",
-    "UT",
-    "info_fn",
+    "apply_fn",
     "pack_state",
     "packed_len",
     "pgs_fn",
     "rules_static",
-    "step_fn",
+    "result_fn",
+    "script_fn",
+    "search_fn",
+    "turn_fn",
     "unpack",
+    "unpack_host",
 ]

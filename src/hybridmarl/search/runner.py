@@ -19,7 +19,6 @@ import jax
 import numpy as np
 
 from hybridmarl.engine.battle import BattleResults, pad_states, run_battles
-from hybridmarl.engine.scripts import SCRIPTS
 from hybridmarl.engine.state import GameState, Rules, UnitSpec, make_rules
 from hybridmarl.search import kernels as K
 from hybridmarl.search.base import Player, ScriptPlayer, SearchStats
@@ -105,12 +104,10 @@ def _spec_name(p: str | Player) -> str:
     return p if isinstance(p, str) else p.name
 
 
-def _is_script(p: str | Player) -> bool:
-    if isinstance(p, ScriptPlayer):
-        return True
-    if isinstance(p, str):
-        return isinstance(make_player(p), ScriptPlayer)
-    return False
+def _script_of(p: str | Player) -> str | None:
+    """The script name if ``p`` is a scripted player (object or spec), else None."""
+    pl = make_player(p) if isinstance(p, str) else p
+    return pl.script if isinstance(pl, ScriptPlayer) else None
 
 
 def run_player_battles(
@@ -133,10 +130,9 @@ def run_player_battles(
     if not states:
         raise ValueError("no start states to play")
     rules = make_rules() if rules is None else rules
-    if _is_script(p0_spec) and _is_script(p1_spec):
-        s0 = p0_spec.script if isinstance(p0_spec, ScriptPlayer) else make_player(p0_spec).name
-        s1 = p1_spec.script if isinstance(p1_spec, ScriptPlayer) else make_player(p1_spec).name
-        assert s0 in SCRIPTS and s1 in SCRIPTS
+    s0, s1 = _script_of(p0_spec), _script_of(p1_spec)
+    if s0 is not None and s1 is not None:
+        # Script vs script: the engine's fully compiled batched series.
         return run_battles(states, s0, s1, seed=seed, rules=rules, progress=progress)
     players = [as_player(p0_spec), as_player(p1_spec)]
     stacked, _ = pad_states(states)

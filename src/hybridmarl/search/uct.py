@@ -21,7 +21,8 @@ ordering nokdps+kiter-dps, playouts nokdps/nokdps, Alternate, no opponent model,
 
 Deviations from SparCraft
 -------------------------
-- **Leaf parallelism** (``batch``, default 16): each round descends up to ``batch`` times, marking
+- **Leaf parallelism** (``batch``, default ``auto``: 32 playouts per call up to 12 units a side,
+  16 up to 24, 8 up to 40, then 4; see ``base.auto_batch``): each round descends up to ``batch`` times, marking
   every node on a path with a *virtual loss* (one visit, a loss for the player choosing it), and
   evaluates all collected leaves in one batched engine call, then backs the real results up. A
   descent that reaches a node whose evaluation is still in flight ends the round. ``batch=1`` is
@@ -42,16 +43,17 @@ import math
 import time
 from typing import Any
 
-import jax
 import numpy as np
 
 from hybridmarl.search import kernels as K
 from hybridmarl.search.base import (
     DeviceArgs,
+    Engine,
     SearchPlayer,
     SearchStats,
     deadline_from,
-    info_for,
+    eval_params,
+    resolve_batch,
     unique,
 )
 from hybridmarl.search.moves import child_moves
@@ -101,19 +103,11 @@ class UCTPlayer(SearchPlayer):
         self.info_scripts = unique(self.ordering + ((self.model,) if self.model else ()))
         self.playout = (o["playout0"], o["playout1"])
 
-    # -- compiled programs -------------------------------------------------------------------
-    def _eval_fn(self, dev: DeviceArgs):
-        return K.step_fn(dev.num_slots, self.options["batch"], self.info_scripts, self.options["eval"], self.playout, dev.rules_key)
+    def _engine(self, dev: DeviceArgs, stats: SearchStats) -> Engine:
+        return Engine(self, dev, self.info_scripts, self.playout, stats)
 
     def _warmup(self, root: np.ndarray, dev: DeviceArgs) -> None:
-        b = self.options["batch"]
-        n = dev.num_slots
-        info_for(dev, self.info_scripts)(self.key(), root[None], *dev.args)
-        out = self._eval_fn(dev)(
-            self.key(), np.repeat(root[None], b, 0), np.zeros((b, 2, n), np.int32), np.zeros((b, 2), bool),
-            np.zeros(b, bool), np.zeros(b, np.int32), *dev.args,
-        )
-        jax.block_until_ready(out)
+        self._engine(dev, SearchStats()).warmup(root, [1, resolve_batch(self.options["batch"], dev.num_slots)])
 
     # -- search ------------------------------------------------------------------------------
     def _search(self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float) -> np.ndarray:
@@ -122,14 +116,15 @@ class UCTPlayer(SearchPlayer):
         deadline = deadline_from(t0, o["time_ms"])
         c_value = float(o["c"])
         max_trav = int(o["traversals"])
-        batch = int(o["batch"])
-        eval_fn = self._eval_fn(dev)
+        batch = resolve_batch(o["batch"], n)
+        stats.extra["batch"] = batch
+        engine = self._engine(dev, stats)
+        cap, use_ltd = eval_params(o["eval"])
 
         # Root: SparCraft applies the root's (empty) move and finishedMoving on every traversal.
         root_post = noop_finish(root, n)
-        rinfo = jax.device_get(info_for(dev, self.info_scripts)(self.key(), root_post[None], *dev.args))
-        stats.calls += 1
-        root_info = _Info(rinfo, 0, root_post)
+        rinfo = engine.run(1, root_post[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), p, 0)
+        root_info = _Info(rinfo["info"], 0, root_post)
         fallback = self._fallback(root_info, p)
         if not root_info["movers"][p] or root_info["terminal"]:
             stats.fallback = True
@@ -269,12 +264,11 @@ class UCTPlayer(SearchPlayer):
                 if time.perf_counter() >= deadline:
                     break
                 continue
-            results = self._evaluate(eval_fn, dev, leaves, parent, player, ntype, move, info, root_post, p, batch)
-            stats.calls += 1
+            results = self._evaluate(engine, leaves, parent, player, ntype, move, info, root_post, p, batch, cap, use_ltd)
             stats.playouts += len(leaves)
             for j, (leaf, path) in enumerate(leaves):
                 if leaf != 0 and ntype[leaf] != FIRST:
-                    info[leaf] = _Info(results, j, results["child"][j])
+                    info[leaf] = _Info(results["info"], j, results["child"][j])
                 backup(path, int(results["value"][j]), virtual=True)
             done += len(leaves)
             if time.perf_counter() >= deadline:
@@ -314,21 +308,20 @@ class UCTPlayer(SearchPlayer):
         legal = root_info["legal"][p]
         return np.where(acting, np.argmax(legal, axis=1), 0).astype(np.int32)
 
-    def _evaluate(self, eval_fn, dev: DeviceArgs, leaves, parent, player, ntype, move, info, root_post, p: int, batch: int):
+    def _evaluate(self, engine: Engine, leaves, parent, player, ntype, move, info, root_post, p: int, batch: int, cap: int, use_ltd: bool):
         """One batched engine call: apply each leaf's move(s) to its parent's state and evaluate."""
-        n = dev.num_slots
-        k = len(leaves)
-        base = np.empty((batch, root_post.shape[0]), np.int32)
-        actions = np.zeros((batch, 2, n), np.int32)
-        mask = np.zeros((batch, 2), bool)
-        do_step = np.zeros(batch, bool)
+        n = engine.dev.num_slots
+        m = len(leaves)
+        base = np.empty((m, root_post.shape[0]), np.int32)
+        actions = np.zeros((m, 2, n), np.int32)
+        mask = np.zeros((m, 2), bool)
+        do_step = np.zeros(m, bool)
         for j, (leaf, _) in enumerate(leaves):
             if leaf == 0:
                 base[j] = root_post
                 continue
             par = parent[leaf]
-            pinfo = info[par]
-            base[j] = pinfo.vec
+            base[j] = info[par].vec
             pl = player[leaf]
             actions[j, pl] = move[leaf]
             mask[j, pl] = True
@@ -336,11 +329,4 @@ class UCTPlayer(SearchPlayer):
             if ntype[leaf] == SECOND:
                 actions[j, player[par]] = move[par]
                 mask[j, player[par]] = True
-        if k < batch:  # pad with copies of the first entry (results ignored)
-            base[k:] = base[0]
-            actions[k:] = actions[0]
-            mask[k:] = mask[0]
-            do_step[k:] = do_step[0]
-        players = np.full(batch, p, np.int32)
-        out = eval_fn(self.key(), base, actions, mask, do_step, players, *dev.args)
-        return jax.device_get(out)
+        return engine.run(batch, base, actions, mask, do_step, p, cap, use_ltd)
