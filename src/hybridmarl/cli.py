@@ -6,6 +6,8 @@ Subcommands:
   win-rate table and optional JSON results.
 - ``hybridmarl bench engine``: engine throughput (games/s, unit-actions/s) as JSON.
 - ``hybridmarl trace``: a turn-by-turn trace of one battle, in SparCraft's reference trace format.
+- ``hybridmarl replay``: a GIF of a combat battle or a Traffic Junction episode.
+- ``hybridmarl demos`` / ``train`` / ``eval``: demonstrations, learners, evaluation (``hybridmarl.algos``).
 
 Bad input (an unknown unit type or script, a unit off the map, an empty side, malformed JSON, a
 missing file) gets one line on stderr naming the problem and exit code 2; no output file is left.
@@ -293,6 +295,7 @@ def main(argv: list[str] | None = None) -> int:
         "battle": (BattleConfig, run_battle),
         "trace": (TraceConfig, run_trace),
         "bench": None,
+        "replay": None,
         # The learners (hybridmarl.algos.cli): raw args, parsed there.
         "train": None,
         "eval": None,
@@ -300,10 +303,11 @@ def main(argv: list[str] | None = None) -> int:
     }
     if not args or args[0] in ("-h", "--help"):
         print(
-            "usage: hybridmarl {battle,trace,bench,train,eval,demos} ...\n\n"
+            "usage: hybridmarl {battle,trace,bench,replay,train,eval,demos} ...\n\n"
             "  battle        play a scripted battle series and print a win-rate table\n"
             "  trace         print a turn-by-turn trace of one battle\n"
             "  bench engine  engine throughput benchmark (JSON)\n"
+            "  replay        record a battle or a Traffic Junction episode as a GIF\n"
             "  train         train a learner (--algo hybrid|bc, --preset paper|quick|...)\n"
             "  eval          evaluate a trained policy or a script (W, R with 95% CIs)\n"
             "  demos         record / inspect demonstration datasets (collect, info)\n\n"
@@ -316,6 +320,10 @@ def main(argv: list[str] | None = None) -> int:
             return _fail("usage: hybridmarl bench engine [options]")
         cfg = tyro.cli(BenchEngineConfig, args=rest[1:], prog="hybridmarl bench engine")
         return run_bench_engine(cfg)
+    if cmd == "replay":
+        from hybridmarl.replay import ReplayConfig, run_replay
+
+        return run_replay(tyro.cli(ReplayConfig, args=rest, prog="hybridmarl replay"))
     if cmd in ("train", "eval", "demos"):
         from hybridmarl.algos import cli as algos_cli
 

@@ -54,6 +54,7 @@ import gymnasium
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 from pettingzoo import ParallelEnv
 
 from hybridmarl.envs.base import MultiAgentEnv
@@ -68,6 +69,46 @@ class _Compiled:
     avail: Any
     active: Any
     critic: Any
+    layouts: dict[str, _Layout]
+
+
+class _Layout:
+    """How a pytree of small arrays was packed into one int32 vector.
+
+    Returning every per-step output (observations, reward, done, info, masks) as one flat
+    vector makes the device-to-host copy one transfer instead of about twenty, which was most
+    of the adapter's overhead at B = 1. Floats travel as float32 bit patterns, integers and
+    bools as int32 (exact for every value an env reports: counters, frames and flags)."""
+
+    def __init__(self, tree: Any) -> None:
+        leaves, self.treedef = jax.tree.flatten(tree)
+        # (float?, start, stop, shape, dtype) per leaf, so unpacking is slicing only.
+        self.entries: list[tuple[bool, int, int, tuple[int, ...], np.dtype]] = []
+        offset = 0
+        for leaf in leaves:
+            is_float = bool(jnp.issubdtype(leaf.dtype, jnp.floating))
+            size = int(np.prod(leaf.shape, dtype=np.int64))
+            shape = tuple(int(d) for d in leaf.shape)
+            self.entries.append((is_float, offset, offset + size, shape, np.dtype(leaf.dtype)))
+            offset += size
+
+    @staticmethod
+    def pack(tree: Any) -> jax.Array:
+        parts = [
+            lax.bitcast_convert_type(jnp.ravel(x).astype(jnp.float32), jnp.int32)
+            if jnp.issubdtype(x.dtype, jnp.floating)
+            else jnp.ravel(x).astype(jnp.int32)
+            for x in jax.tree.leaves(tree)
+        ]
+        return jnp.concatenate(parts) if parts else jnp.zeros((0,), jnp.int32)
+
+    def unpack(self, buf: np.ndarray) -> Any:
+        as_float = buf.view(np.float32)
+        leaves = [
+            (as_float if is_float else buf)[start:stop].reshape(shape).astype(dtype, copy=False)
+            for is_float, start, stop, shape, dtype in self.entries
+        ]
+        return jax.tree.unflatten(self.treedef, leaves)
 
 
 _CACHE: weakref.WeakKeyDictionary[Any, _Compiled] = weakref.WeakKeyDictionary()
@@ -76,13 +117,16 @@ _CACHE: weakref.WeakKeyDictionary[Any, _Compiled] = weakref.WeakKeyDictionary()
 def _compiled(env: MultiAgentEnv[Any, Any]) -> _Compiled:
     """Jitted entry points for ``env``, built once per env object.
 
-    The jitted closures hold the env only weakly, so the cache entry dies with the env.
+    ``reset`` and ``step`` return the new key, the env state (kept on the device) and the
+    host-bound outputs packed into two vectors (see ``_Layout``; the layout is recorded while
+    tracing). The jitted closures hold the env only weakly, so the cache entry dies with the env.
     """
     try:
         return _CACHE[env]
     except KeyError:
         pass
     ref = weakref.ref(env)
+    layouts: dict[str, _Layout] = {}
 
     def _env() -> MultiAgentEnv[Any, Any]:
         e = ref()
@@ -100,15 +144,20 @@ def _compiled(env: MultiAgentEnv[Any, Any]) -> _Compiled:
             fallback = fallback_fn(state)
         return mask, e.agent_active(state), fallback
 
+    def packed(name: str, tree: Any) -> jax.Array:
+        layouts[name] = _Layout(tree)  # runs at trace time: the layout of this compilation
+        return _Layout.pack(tree)
+
     def reset(key: jax.Array, params: Any) -> Any:
         key, sub = jax.random.split(key)
         obs, state = _env().reset(sub, params)
-        return (key, obs, state, *extras(state, params))
+        return key, state, packed("reset", (obs, *extras(state, params)))
 
     def step(key: jax.Array, state: Any, actions: jax.Array, params: Any) -> Any:
         key, sub = jax.random.split(key)
-        out = _env().step(sub, state, actions, params)
-        return (key, *out, *extras(out[1], params))
+        obs, new_state, reward, done, info = _env().step(sub, state, actions, params)
+        host = (obs, reward, done, info, *extras(new_state, params))
+        return key, new_state, packed("step", host)
 
     compiled = _Compiled(
         reset=jax.jit(reset),
@@ -116,6 +165,7 @@ def _compiled(env: MultiAgentEnv[Any, Any]) -> _Compiled:
         avail=jax.jit(lambda state, params: _env().get_avail_actions(state, params)),
         active=jax.jit(lambda state: _env().agent_active(state)),
         critic=jax.jit(lambda state, actions: _env().critic_features(state, actions)),
+        layouts=layouts,
     )
     _CACHE[env] = compiled
     return compiled
@@ -189,9 +239,11 @@ class PettingZooAdapter(ParallelEnv):
             self._key = jax.random.key(seed)
         elif self._key is None:
             self._key = jax.random.key(int(np.random.SeedSequence().generate_state(1)[0]))
-        key, obs, state, mask, active, fallback = self._fns.reset(self._key, self.params)
+        key, state, buf = self._fns.reset(self._key, self.params)
         self._key, self._state = key, state
-        obs, self._mask, self._active, self._fallback = jax.device_get((obs, mask, active, fallback))
+        obs, self._mask, self._active, self._fallback = self._fns.layouts["reset"].unpack(
+            np.asarray(buf)
+        )
         assert self._active is not None
         if self._remove_inactive:
             self.agents = [a for a in self.possible_agents if self._active[self._index[a]]]
@@ -225,19 +277,15 @@ class PettingZooAdapter(ParallelEnv):
                     )
                 a = int(self._fallback[i])
             joint[i] = a
-        out = self._fns.step(self._key, self._state, joint, self.params)
-        self._key, self._state = out[0], out[2]
-        obs, reward, done, info, self._mask, self._active, self._fallback = jax.device_get(
-            (out[1], out[3], out[4], out[5], out[6], out[7], out[8])
-        )
+        self._key, self._state, buf = self._fns.step(self._key, self._state, joint, self.params)
+        host = self._fns.layouts["step"].unpack(np.asarray(buf))
+        obs, reward, done, info, self._mask, self._active, self._fallback = host
         assert self._active is not None
         agents = list(self.agents)
         done = bool(done)
         rewards = dict.fromkeys(agents, float(reward))
         if self._remove_inactive:
-            terminations = {
-                a: done or not bool(self._active[self._index[a]]) for a in agents
-            }
+            terminations = {a: done or not bool(self._active[self._index[a]]) for a in agents}
         else:
             terminations = dict.fromkeys(agents, done)
         truncations = dict.fromkeys(agents, False)
@@ -289,20 +337,26 @@ class PettingZooAdapter(ParallelEnv):
     def _infos(self, info: dict[str, Any]) -> dict[str, dict[str, Any]]:
         assert self._mask is not None and self._active is not None
         n = len(self.possible_agents)
+        shared: dict[str, Any] = {}
+        per_agent: dict[str, np.ndarray] = {}
+        for k, v in info.items():
+            v = np.asarray(v)
+            if v.ndim == 0:
+                shared[k] = v.item()
+            elif v.shape[0] == n:
+                per_agent[k] = v
+            else:
+                shared[k] = v
+        masks = self._mask.astype(np.int8)
         infos: dict[str, dict[str, Any]] = {}
         for agent in self.agents:
             i = self._index[agent]
-            entry: dict[str, Any] = {
-                "action_mask": self._mask[i].astype(np.int8),
-                "active": bool(self._active[i]),
-            }
-            for k, v in info.items():
-                v = np.asarray(v)
-                if v.ndim == 0:
-                    entry[k] = v.item()
-                elif v.shape[0] == n:
-                    entry[k] = v[i].item() if v.ndim == 1 else v[i].copy()
-                else:
+            entry: dict[str, Any] = {"action_mask": masks[i], "active": bool(self._active[i])}
+            entry.update(shared)
+            for k, v in per_agent.items():
+                entry[k] = v[i].item() if v.ndim == 1 else v[i].copy()
+            for k, v in shared.items():
+                if isinstance(v, np.ndarray):
                     entry[k] = v.copy()
             infos[agent] = entry
         return infos
