@@ -50,25 +50,62 @@ class BRDResult(NamedTuple):
     sweeps: jax.Array  # int32 []: update sweeps run (<= iterations)
     changes: jax.Array  # int32 [B]: single-agent switches made
     trace: jax.Array  # float32 [iterations * N, B]: Q(s, Ã) after each update (NaN: no update)
+    visits: jax.Array  # int32 []: batched Q evaluations made (= one-step simulations of B x A)
 
 
 def make_q_fn(
     lookahead: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]],
     value_fn: Callable[[Any], jax.Array],
     gamma: float,
+    *,
+    steps: int = 1,
+    step_fn: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]] | None = None,
+    policy_fn: Callable[[jax.Array, Any], jax.Array] | None = None,
 ) -> QFn:
     """Build Eq. 2's ``Q(s, A) = r + λ V(s')`` (``V(s') = 0`` at a terminal ``s'``) for B games.
 
     ``lookahead(key, state, cand [A, N]) -> (r [A], s' [A], done [A])`` is one game's one-step
     simulation; ``value_fn(states [M]) -> V [M]`` evaluates the critic on a flat batch.
+
+    ``steps = K > 1`` (an option; the paper uses one step): after the first step, the
+    continuation policy ``policy_fn(key, states [M]) -> actions [M, N]`` plays ``K - 1`` more
+    steps (``step_fn(key, state, actions) -> (r, s', done)``) and the critic bootstraps at the
+    end: ``Q = sum_{i<K} λ^i r_i + λ^K V(s_K)``, the same quantity with less weight on the
+    critic's error (exact when the episode ends within K steps; the simulator is deterministic
+    under the shared key). The loop stops early when every simulated game has ended.
     """
 
     def q_fn(keys: jax.Array, states: Any, cand: jax.Array) -> jax.Array:
         r, s2, done = jax.vmap(lookahead)(keys, states, cand)
         b, a = r.shape
         flat = jax.tree.map(lambda x: x.reshape((b * a,) + x.shape[2:]), s2)
-        v = value_fn(flat).reshape(b, a)
-        return r + gamma * jnp.where(done, 0.0, v)
+        ret = r.reshape(-1)
+        disc = jnp.full((b * a,), gamma, jnp.float32)
+        ended = done.reshape(-1)
+        if steps > 1:
+            if step_fn is None or policy_fn is None:
+                raise ValueError("steps > 1 needs step_fn and policy_fn")
+            sim, play = step_fn, policy_fn
+            game_keys = jnp.repeat(keys, a, axis=0)  # one key per game: common random numbers
+
+            def cond(c: tuple) -> jax.Array:
+                i, _, _, _, ended = c
+                return (i < steps - 1) & ~jnp.all(ended)
+
+            def body(c: tuple) -> tuple:
+                i, ret, disc, s, ended = c
+                ks = jax.vmap(lambda k: jax.random.fold_in(k, i + 1))(game_keys)
+                acts = play(ks, s)
+                r2, s_next, d2 = jax.vmap(sim)(ks, s, acts)
+                live = ~ended
+                ret = ret + jnp.where(live, disc * r2, 0.0)
+                disc = jnp.where(live, disc * gamma, disc)
+                s = jax.tree.map(lambda x, y: jnp.where(live.reshape(live.shape + (1,) * (x.ndim - 1)), x, y), s_next, s)
+                return i + 1, ret, disc, s, ended | d2
+
+            _, ret, disc, flat, ended = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), ret, disc, flat, ended))
+        v = value_fn(flat)
+        return (ret + disc * jnp.where(ended, 0.0, v)).reshape(b, a)
 
     return q_fn
 
@@ -104,61 +141,60 @@ def best_response_dynamics(
     start_ok = jnp.take_along_axis(legal, a_init[..., None], axis=-1)[..., 0]
     a_init = jnp.where(start_ok, a_init, jnp.argmax(legal, axis=-1)).astype(jnp.int32)
 
-    def visit(k: jax.Array, carry: tuple, update: bool) -> tuple:
-        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep = carry
-        g = perm[:, jnp.minimum(k, n - 1)]  # [B]
+    def visit(k: jax.Array, carry: tuple) -> tuple:
+        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep, update, visits = carry
+        g = perm[:, jnp.minimum(k, n - 1)]  # [B]: the agent visited in each game
         valid = k < n_dec  # [B]
         cand = jnp.broadcast_to(act[:, None, :], (b, na, n))
         cand = jnp.where(jnp.arange(n)[None, None, :] == g[:, None, None], actions_range[None, :, None], cand)
-        q = q_fn(keys, states, cand)  # [B, A]
+        q = q_fn(keys, states, cand)  # [B, A]: Q(s, a, Ã_-g) for every action a
         lg = legal[bidx, g]  # [B, A]
         ql = jnp.where(lg, q, -jnp.inf)
         best = jnp.argmax(ql, axis=-1).astype(jnp.int32)
         cur = act[bidx, g]
         q_cur = jnp.where(lg[bidx, cur], q[bidx, cur], -jnp.inf)
         q_best = ql[bidx, best]
-        improve = valid & (q_best > q_cur) if update else jnp.zeros_like(valid)
-        new_a = jnp.where(improve, best, cur)
-        act = act.at[bidx, g].set(jnp.where(valid, new_a, cur))
+        improve = valid & (q_best > q_cur) & update
+        act = act.at[bidx, g].set(jnp.where(improve, best, cur))
         qtab = qtab.at[bidx, g].set(jnp.where(valid[:, None], q, qtab[bidx, g]))
         qval = qval.at[bidx, g].set(qval[bidx, g] | valid)
         q_now = jnp.where(improve, q_best, q_cur)
         qcur = jnp.where(valid, q_now, qcur)
-        first = valid & jnp.isnan(q_init)
-        q_init = jnp.where(first, q_cur, q_init)
+        q_init = jnp.where(valid & jnp.isnan(q_init), q_cur, q_init)
         changed = changed | improve
         changes = changes + improve.astype(jnp.int32)
-        if update:
-            idx = jnp.minimum(sweep * n + k, iterations * n - 1)
-            trace = trace.at[idx].set(jnp.where(valid, q_now, jnp.nan))
-        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep
+        idx = jnp.minimum(sweep * n + k, max(iterations, 1) * n - 1)
+        trace = trace.at[idx].set(jnp.where(update, jnp.where(valid, q_now, jnp.nan), trace[idx]))
+        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep, update, visits + 1
 
-    def sweep_fn(carry: tuple, update: bool) -> tuple:
-        act, qtab, qval, qcur, _, changes, q_init, trace, sweep = carry
-        carry = (act, qtab, qval, qcur, jnp.zeros((b,), bool), changes, q_init, trace, sweep)
-        carry = jax.lax.fori_loop(0, max_dec, lambda k, c: visit(k, c, update), carry)
-        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep = carry
-        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep + (1 if update else 0)
+    def sweep_fn(carry: tuple) -> tuple:
+        """One pass over the agents; an update sweep while fewer than ``iterations`` were run,
+        else an evaluation-only sweep (the cap was hit: refresh the table at the final Ã)."""
+        act, qtab, qval, qcur, _, changes, q_init, trace, sweep, _, _, visits = carry
+        update = sweep < iterations
+        inner = (act, qtab, qval, qcur, jnp.zeros((b,), bool), changes, q_init, trace, sweep, update, visits)
+        inner = jax.lax.fori_loop(0, max_dec, visit, inner)
+        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep, update, visits = inner
+        # Done when a sweep changed nothing (the table is exact) or after the evaluation sweep.
+        finished = ~jnp.any(changed) | ~update
+        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep + update.astype(jnp.int32), update, finished, visits
 
     init = (
         a_init,
         jnp.zeros((b, n, na), jnp.float32),
         jnp.zeros((b, n), bool),
         jnp.full((b,), jnp.nan, jnp.float32),
-        jnp.ones((b,), bool),  # "changed in the last sweep": run at least one sweep
+        jnp.zeros((b,), bool),
         jnp.zeros((b,), jnp.int32),
         jnp.full((b,), jnp.nan, jnp.float32),
         jnp.full((max(iterations, 1) * n, b), jnp.nan, jnp.float32),
         jnp.zeros((), jnp.int32),
+        jnp.asarray(True),
+        jnp.asarray(False),
+        jnp.zeros((), jnp.int32),
     )
-
-    def cond(carry: tuple) -> jax.Array:
-        return (carry[-1] < iterations) & jnp.any(carry[4])
-
-    carry = jax.lax.while_loop(cond, lambda c: sweep_fn(c, True), init)
-    # The cap was hit with changes in the last sweep: refresh the Q table at the final Ã.
-    carry = jax.lax.cond(jnp.any(carry[4]), lambda c: sweep_fn(c, False), lambda c: c, carry)
-    act, qtab, qval, qcur, _, changes, q_init, trace, sweep = carry
+    carry = jax.lax.while_loop(lambda c: ~c[-2], sweep_fn, init)
+    act, qtab, qval, qcur, _, changes, q_init, trace, sweep, _, _, visits = carry
     return BRDResult(
         actions=act,
         q=qtab,
@@ -168,4 +204,5 @@ def best_response_dynamics(
         sweeps=sweep,
         changes=changes,
         trace=trace,
+        visits=visits,
     )

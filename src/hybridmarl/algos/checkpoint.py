@@ -42,7 +42,9 @@ class CheckpointError(ValueError):
 def _contiguous(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     out = {}
     for k, v in arrays.items():
-        a = np.ascontiguousarray(np.asarray(v))
+        a = np.asarray(v)
+        if not a.flags.c_contiguous:  # (np.ascontiguousarray would turn a 0-d array into 1-d)
+            a = a.copy(order="C")
         if a.dtype == object:
             raise TypeError(f"array {k!r} has dtype object; only numeric arrays are checkpointed")
         out[k] = a

@@ -90,11 +90,8 @@ class RunLogger:
             import json
 
             self.tb.add_text("config", "```\n" + json.dumps(doc, indent=2, sort_keys=True) + "\n```", 0)
-            hp = {k: v for k, v in _flat(doc.get("config", {})).items() if isinstance(v, int | float | str | bool)}
-            try:
-                self.tb.add_hparams(hp, {}, name="hparams", global_step=0)
-            except Exception:  # pragma: no cover - tensorboardX versions differ
-                pass
+            for k, v in _flat(doc.get("config", {})).items():
+                self.tb.add_text(f"hparams/{k}", str(v), 0)
 
     def resume_at(self, episodes: int) -> None:
         self.train.truncate_after(episodes)
@@ -144,7 +141,14 @@ class Progress:
 
         console = Console(stderr=True)
         if console.is_terminal:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress as RichProgress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+            from rich.progress import Progress as RichProgress
 
             self._bar = RichProgress(
                 TextColumn("[bold]{task.description}"),

@@ -22,7 +22,7 @@ Batch norm, train vs eval (Flax linen ``BatchNorm``):
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import flax.linen as nn
 import jax
@@ -97,7 +97,7 @@ def apply_eval(module: MLP, net: NetState | dict, x: jax.Array) -> jax.Array:
         variables = {"params": net.params, "batch_stats": net.batch_stats}
     else:
         variables = net
-    return module.apply(variables, x, train=False)
+    return cast(jax.Array, module.apply(variables, x, train=False))
 
 
 def apply_train(
@@ -126,6 +126,15 @@ def actor_actions(module: MLP, net: NetState | dict, obs: jax.Array, legal: jax.
     lead = obs.shape[:-1]
     logits = apply_eval(module, net, obs.reshape((-1, obs.shape[-1])))
     return legal_argmax(logits.reshape(lead + (-1,)), legal)
+
+
+def module_spec(module: MLP) -> tuple[tuple[int, ...], int]:
+    """A hashable description of an MLP (cache key): (hidden widths, outputs)."""
+    return (tuple(module.hidden), int(module.out))
+
+
+def from_spec(spec: tuple[tuple[int, ...], int]) -> MLP:
+    return MLP(hidden=spec[0], out=spec[1])
 
 
 def num_params(tree: Any) -> int:

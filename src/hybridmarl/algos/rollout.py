@@ -83,63 +83,91 @@ def pool_steps(task: Task, act: ActFn, pool: Pool, carry: Any, num_steps: int) -
 
 
 class EpisodeAssembler:
-    """Host-side per-slot episode collection (see the module docstring)."""
+    """Host-side per-slot episode collection (see the module docstring).
+
+    Rows are dicts of named per-step arrays (``state.<path>``, and for demonstrations ``obs``,
+    ``legal``, ``actions``, ...). A finished episode gets ``t`` (step in the episode) and
+    ``episode_key`` (a running count of finished episodes) added to its rows.
+    """
 
     def __init__(self, num_envs: int, gamma: float) -> None:
         self.num_envs = num_envs
         self.gamma = gamma
-        self.states: list[list[dict[str, np.ndarray]]] = [[] for _ in range(num_envs)]
+        self.rows: list[list[dict[str, np.ndarray]]] = [[] for _ in range(num_envs)]
         self.rewards: list[list[float]] = [[] for _ in range(num_envs)]
+        self.finished = 0
 
     def add(self, out: dict) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
-        """Add a ``pool_steps`` output block ``[K, B]``; returns the finished episodes'
-        ``(states {name: [M, ...]}, returns [M], stats {name: [E]})`` in slot-then-time order
-        per step of completion."""
-        states = flatten_named(jax.device_get(out["state"]))
-        reward = np.asarray(out["reward"], np.float32)
-        done = np.asarray(out["done"], bool)
-        stats = {k: np.asarray(v) for k, v in out["stats"].items()}
-        k_steps = reward.shape[0]
-        fin_states: list[dict[str, np.ndarray]] = []
+        """Add a ``pool_steps`` output block ``[K, B]`` (states only)."""
+        fields = {"state." + k: v for k, v in flatten_named(jax.device_get(out["state"])).items()}
+        return self.add_fields(fields, out["reward"], out["done"], out["stats"])
+
+    def add_fields(
+        self, fields: dict[str, np.ndarray], reward: Any, done: Any, stats: dict[str, Any]
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
+        """Add named per-step arrays ``[K, B, ...]``; returns the rows of the episodes that
+        finished (``{name: [M, ...]}``, grouped by episode in order of completion), their
+        discounted returns ``[M]`` and the finished episodes' metrics ``{name: [E]}``."""
+        reward = np.asarray(reward, np.float32)
+        done = np.asarray(done, bool)
+        stats_np = {k: np.asarray(v) for k, v in stats.items()}
+        fields = {k: np.asarray(v) for k, v in fields.items()}
+        fin_rows: list[dict[str, np.ndarray]] = []
         fin_returns: list[np.ndarray] = []
-        fin_stats: dict[str, list] = {k: [] for k in stats}
-        for t in range(k_steps):
+        fin_stats: dict[str, list] = {k: [] for k in stats_np}
+        fin_stats["return"] = []  # the undiscounted sum of rewards
+        for t in range(reward.shape[0]):
             for s in range(self.num_envs):
-                self.states[s].append({k: v[t, s] for k, v in states.items()})
+                self.rows[s].append({k: v[t, s] for k, v in fields.items()})
                 self.rewards[s].append(float(reward[t, s]))
                 if done[t, s]:
+                    rows = self.rows[s]
                     fin_returns.append(discounted_returns(np.asarray(self.rewards[s]), self.gamma))
-                    fin_states.extend(self.states[s])
-                    for k in stats:
-                        fin_stats[k].append(stats[k][t, s])
-                    self.states[s], self.rewards[s] = [], []
-        names = list(states)
-        st = {k: np.stack([x[k] for x in fin_states]) if fin_states else np.zeros((0,) + states[k].shape[2:], states[k].dtype) for k in names}
+                    for i, r in enumerate(rows):
+                        r["t"] = np.asarray(i, np.int32)
+                        r["episode_key"] = np.asarray(self.finished, np.int64)
+                    fin_rows.extend(rows)
+                    for k in stats_np:
+                        fin_stats[k].append(stats_np[k][t, s])
+                    fin_stats["return"].append(float(np.sum(self.rewards[s])))
+                    self.finished += 1
+                    self.rows[s], self.rewards[s] = [], []
+        names = list(fields) + ["t", "episode_key"]
+        if fin_rows:
+            out = {k: np.stack([r[k] for r in fin_rows]) for k in names}
+        else:
+            out = {k: np.zeros((0,) + fields[k].shape[2:], fields[k].dtype) for k in fields}
+            out["t"] = np.zeros((0,), np.int32)
+            out["episode_key"] = np.zeros((0,), np.int64)
         ret = np.concatenate(fin_returns) if fin_returns else np.zeros((0,), np.float32)
-        return st, ret, {k: np.asarray(v, np.float32) for k, v in fin_stats.items()}
+        return out, ret, {k: np.asarray(v, np.float32) for k, v in fin_stats.items()}
 
     # -- checkpointing -----------------------------------------------------------------------------
 
-    def to_arrays(self, template_names: list[str] | None = None) -> dict[str, np.ndarray]:
+    def to_arrays(self) -> dict[str, np.ndarray]:
         slots, rewards, rows = [], [], []
         for s in range(self.num_envs):
-            for x, r in zip(self.states[s], self.rewards[s], strict=True):
+            for x, r in zip(self.rows[s], self.rewards[s], strict=True):
                 slots.append(s)
                 rewards.append(r)
                 rows.append(x)
-        out = {"slot": np.asarray(slots, np.int32), "reward": np.asarray(rewards, np.float32)}
+        out = {
+            "slot": np.asarray(slots, np.int32),
+            "reward": np.asarray(rewards, np.float32),
+            "finished": np.asarray(self.finished, np.int64),
+        }
         if rows:
             for k in rows[0]:
-                out["state." + k] = np.stack([x[k] for x in rows])
+                out["row." + k] = np.stack([x[k] for x in rows])
         return out
 
-    def load_arrays(self, arrays: dict[str, np.ndarray], state_template: dict[str, np.ndarray]) -> None:
-        self.states = [[] for _ in range(self.num_envs)]
+    def load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
+        self.rows = [[] for _ in range(self.num_envs)]
         self.rewards = [[] for _ in range(self.num_envs)]
-        slots = arrays["slot"]
-        for i, s in enumerate(slots):
-            row = {k: arrays["state." + k][i] for k in state_template}
-            self.states[int(s)].append(row)
+        self.finished = int(arrays["finished"])
+        names = [k[len("row.") :] for k in arrays if k.startswith("row.")]
+        for i, s in enumerate(np.asarray(arrays["slot"]).tolist()):
+            self.rows[int(s)].append({k: np.array(arrays["row." + k][i]) for k in names})
             self.rewards[int(s)].append(float(arrays["reward"][i]))
 
 
@@ -156,6 +184,8 @@ class ReplayBuffer:
         self.size = 0
 
     def add(self, states: dict[str, np.ndarray], returns: np.ndarray) -> None:
+        """Append rows (``states``: flattened names, with or without a ``state.`` prefix)."""
+        states = {(k[len("state.") :] if k.startswith("state.") else k): v for k, v in states.items()}
         m = int(returns.shape[0])
         if m == 0:
             return

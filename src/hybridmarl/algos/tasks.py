@@ -89,7 +89,7 @@ def canonical_script(env: str, name: str) -> str:
 
 def default_enemy(demonstrator: str) -> str:
     """The cross-validation enemy of a demonstrator (c <-> w), else attack-weakest."""
-    base, _ = split_demonstrator(demonstrator)
+    base = str(demonstrator).partition(":")[0].strip()
     return CROSS_ENEMY.get(base, "attack-weakest")
 
 

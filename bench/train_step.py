@@ -1,0 +1,123 @@
+"""Where the time of one training step of the hybrid method goes (Phase 3 of ``algos.hybrid``).
+
+Times, for the given preset and scenario, each part of one Alg. 2 step for B games separately
+(all jitted, min over repeats): the one-step simulations + critic of Alg. 1 (``brd``), the actor's
+Eq. 8 update (``actor_update``), the env step with resets (``env_step``), the whole compiled
+chunk (``chunk``, per step), the host-side episode assembly and buffer insertion per chunk
+(``host``), and one critic refit (``critic_fit``, per SGD step). Prints one JSON object.
+
+    python bench/train_step.py [--scenario m5v5] [--preset quick] [--env combat] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from hybridmarl.algos import networks as nets
+from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
+from hybridmarl.algos.hybrid import PRESETS, _static_cfg, _vars, build_learner
+from hybridmarl.algos.losses import actor_loss, advantages
+from hybridmarl.algos.rollout import EpisodeAssembler, ReplayBuffer, new_pool
+from hybridmarl.algos.tasks import make_task
+
+
+def timed(fn, *args, repeats=3):
+    t0 = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    compile_s = time.perf_counter() - t0
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        best = min(best, time.perf_counter() - t0)
+    return best, compile_s
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--env", default="combat")
+    p.add_argument("--scenario", default="m5v5")
+    p.add_argument("--preset", default="quick")
+    p.add_argument("--repeats", type=int, default=3)
+    args = p.parse_args()
+    cfg = dataclasses.replace(PRESETS[args.preset](args.env), scenario=args.scenario)
+    task = make_task(cfg.task_spec())
+    learner = build_learner(task, _static_cfg(cfg), cfg.demonstrator_name())
+    b = cfg.num_envs
+    actor = nets.init_net(learner.actor_mod, jax.random.key(0), task.obs_dim, learner.actor_tx)
+    critic = nets.init_net(learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx)
+    pool = new_pool(task, jax.random.key(2), b)
+    # Warm the pool up to mid-game states with the demonstrator.
+    for _ in range(2):
+        pool, _ = learner.demo_chunk(pool, None)
+    cv = _vars(critic)
+    q_fn = make_q_fn(task.lookahead, learner.value_fn(cv), cfg.gamma)
+    keys = jax.random.split(jax.random.key(3), b)
+    legal = jax.vmap(task.avail)(pool.states)
+
+    @jax.jit
+    def brd(states, obs, legal):
+        a0 = nets.actor_actions(learner.actor_mod, actor, obs, legal)
+        return best_response_dynamics(q_fn, keys, states, a0, legal, cfg.brd_iterations)
+
+    res = brd(pool.states, pool.obs, legal)
+    t_brd, c_brd = timed(brd, pool.states, pool.obs, legal, repeats=args.repeats)
+    adv = advantages(res.q, legal)
+    w = res.q_valid.reshape(-1)
+
+    @jax.jit
+    def update(actor, obs):
+        def loss_fn(params):
+            logits, bs = nets.apply_train(learner.actor_mod, params, actor.batch_stats, obs.reshape(b * task.num_agents, -1), mask=w)
+            return actor_loss(logits, adv.reshape(b * task.num_agents, -1), legal.reshape(b * task.num_agents, -1), w), bs
+
+        (loss, bs), g = jax.value_and_grad(loss_fn, has_aux=True)(actor.params)
+        upd, opt = learner.actor_tx.update(g, actor.opt_state, actor.params)
+        return actor.replace(params=optax.apply_updates(actor.params, upd), batch_stats=bs, opt_state=opt)
+
+    t_upd, _ = timed(update, actor, pool.obs, repeats=args.repeats)
+
+    @jax.jit
+    def env_step(states):
+        a = jnp.zeros((b, task.num_agents), jnp.int32)
+        return jax.vmap(task.step)(keys, states, a)
+
+    t_env, _ = timed(env_step, pool.states, repeats=args.repeats)
+    t_chunk, c_chunk = timed(learner.train_chunk, pool, actor, cv, None, repeats=args.repeats)
+    _, _, out = learner.train_chunk(pool, actor, cv, None)
+    asm = EpisodeAssembler(b, cfg.gamma)
+    buf = ReplayBuffer(cfg.buffer_size, task.reset(jax.random.key(0))[1])
+    t0 = time.perf_counter()
+    s, r, _ = asm.add(out)
+    buf.add(s, r)
+    t_host = time.perf_counter() - t0
+    steps = 200
+    t_fit, _ = timed(lambda: learner.fit_critic(critic, *buf.device_arrays(), jax.random.key(4), jnp.asarray(steps)), repeats=1)
+    per_step = t_chunk / cfg.chunk_steps
+    doc = {
+        "env": args.env, "scenario": args.scenario if args.env == "combat" else None, "preset": args.preset,
+        "batch": b, "agents": task.num_agents, "actions": task.num_actions, "chunk_steps": cfg.chunk_steps,
+        "brd_visits": int(res.visits), "brd_update_sweeps": int(res.sweeps),
+        "seconds": {
+            "brd": round(t_brd, 5), "actor_update": round(t_upd, 5), "env_step": round(t_env, 5),
+            "chunk_per_step": round(per_step, 5), "host_per_chunk": round(t_host, 5),
+            "critic_fit_per_sgd_step": round(t_fit / steps, 6),
+        },
+        "share_of_step": {
+            "brd": round(t_brd / per_step, 3), "actor_update": round(t_upd / per_step, 3), "env_step": round(t_env / per_step, 3),
+        },
+        "env_steps_per_s": round(b / per_step, 1),
+        "compile_s": {"brd": round(c_brd, 1), "chunk": round(c_chunk, 1)},
+    }
+    print(json.dumps(doc, indent=2))
+
+
+if __name__ == "__main__":
+    main()

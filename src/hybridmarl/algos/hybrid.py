@@ -1,0 +1,615 @@
+"""The hybrid learning method (Peng, Xing & Cao, IJCAI 2020), in one file, top to bottom.
+
+    Phase 1  the demonstrator A^D (Section 3): a script, or the behavioural clone θ^D of a
+             demonstration dataset;
+    Phase 2  critic pre-training (Section 4.1, Eq. 3): play A^D from random start states to
+             the end, label every visited state with its discounted return V^D(s) (Eq. 1,
+             λ = 0.995), keep the (s, V^D(s)) pairs in the buffer B, fit V by MSE;
+    Phase 3  the joint update (Alg. 2), B games in parallel; at every step s_t of every game:
+               - Ã(s_t) by best-response dynamics (Alg. 1, ``algos.brd``) on the critic,
+                 started from A^D(s_t) or from the actor's own actions (Section 4.3, below);
+               - the advantage of every legal action of every agent (Eq. 7) and one SGD step
+                 of the shared actor on Eq. 8;
+               - every agent plays the legal argmax of the (updated) actor;
+             finished episodes push (s_t, V(s_t)) into B and, every E_Update episodes, the critic
+             is refitted on B (Eq. 3);
+    Phase 4  evaluation (``algos.evaluate``: 100 battles, legal argmax, W and R with 95% CIs).
+
+Where Alg. 1 starts (``--brd-start``). Section 4.3: "the actor networks can also be used to
+generate action ... and these actions are considered as new demonstration actions", while the
+critic is refitted on the actor's own returns. The default here is **``actor``**: Alg. 1 starts
+from the current actor's legal argmax. That is the reading under which the improvement argument
+of Eq. 6 holds for the policy being learned (the critic estimates the actor's value once B holds
+its returns, and Alg. 1 starts from that same policy), and it needs no demonstrator after Phase
+2 (so "w/o D" and the full method share one code path). ``--brd-start demonstrator`` starts every
+Alg. 1 call from the original A^D instead (Alg. 1's "Input: ... demonstration actions").
+
+The whole of Phase 3's per-step work (Alg. 1 for all games, Eq. 7, Eq. 8, the env step, resets)
+runs as one compiled ``lax.scan`` of ``chunk_steps`` steps; the host only assembles finished
+episodes, feeds B, refits the critic, logs and checkpoints between chunks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from hybridmarl.algos import networks as nets
+from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
+from hybridmarl.algos.checkpoint import (
+    latest_checkpoint,
+    load_checkpoint,
+    prefixed,
+    save_checkpoint,
+    subtree,
+)
+from hybridmarl.algos.common import (
+    TrainConfig,
+    TrainingDiverged,
+    check_finite,
+    config_to_dict,
+    key_data,
+    key_of,
+    resolve_run_dir,
+)
+from hybridmarl.algos.losses import actor_loss, advantages, critic_loss
+from hybridmarl.algos.rollout import EpisodeAssembler, Pool, ReplayBuffer, new_pool, pool_steps
+from hybridmarl.algos.tasks import Task, TaskError, flatten_named, make_task, unflatten_named
+
+ALGO = "hybrid"
+
+
+@dataclass(frozen=True)
+class HybridConfig(TrainConfig):
+    """The hybrid learning method (critic pre-training, best-response dynamics, actor update)."""
+
+    total_episodes: int = 20_000
+    """Training episodes of Alg. 2 (the paper does not state its budget; Fig. 3 plots training
+    curves over episodes)."""
+    num_envs: int = 32
+    """Games played in parallel (the batch of Alg. 1 and of the actor's SGD step)."""
+    chunk_steps: int = 8
+    """Env steps per compiled call (host work in between: buffer, critic refits, logs)."""
+    gamma: float = 0.995
+    """Discount factor λ (Section 5.1)."""
+    brd_iterations: int = 7
+    """Iterations of Alg. 1 (Section 5.1: 7)."""
+    e_update: int = 500
+    """E_Update of Alg. 2: refit the critic every this many episodes (Section 5.1: 500;
+    Traffic Junction, Section 5.3: 100)."""
+    pretrain_samples: int = 100_000
+    """(state, V^D) pairs simulated to pre-train the critic (Section 5.1: 100,000 trajectories;
+    Section 5.3: 20,000 samples). Every state visited by A^D counts as one sample."""
+    pretrain_critic: bool = True
+    """Pre-train the critic from demonstrations (Section 4.1). False = the "w/o D" ablation of
+    Table 2 (critic learned only from the actor's own returns)."""
+    brd_start: Literal["actor", "demonstrator"] = "actor"
+    """Where Alg. 1 starts: the current actor's actions (Section 4.3, the default; see the module
+    docstring) or the original demonstrator A^D."""
+    lookahead_steps: int = 1
+    """Forward simulation per Q estimate in Alg. 1. 1: the paper's one-step simulation,
+    Q = r + λ V(s') (Eq. 2, Section 4.2). K > 1 (an extension): the continuation policy (the
+    one Alg. 1 starts from, see ``brd_start``) plays K - 1 more steps before the critic
+    bootstraps. 0: simulate to the end of the episode, i.e. the exact Q of the continuation
+    policy (the paper's "ideal condition" of Eq. 6); the critic is then unused and not fitted."""
+    clone_script: bool = False
+    """Paper-exact A^D for a script demonstrator: record ``demo_observations`` from it and use
+    its behavioural clone θ^D (Section 3) instead of the script itself."""
+    demo_observations: int = 10_000
+    """Demonstration observations recorded for cloning (Section 5.1: 10,000)."""
+    bc_steps: int = 5_000
+    """SGD steps of behavioural cloning θ^D (not given in the paper)."""
+    bc_batch_size: int = 256
+    """Minibatch of behavioural cloning (not given in the paper)."""
+    optimizer: Literal["sgd", "adam"] = "sgd"
+    """Optimiser of every network (Section 5.1: SGD)."""
+    actor_lr: float = 1e-3
+    """Actor learning rate η of Eq. 8 (Section 5.1: 10^-3)."""
+    critic_lr: float = 1e-3
+    """Critic learning rate (Section 5.1: 10^-3)."""
+    momentum: float = 0.0
+    """SGD momentum (0: plain SGD as in Section 5.1)."""
+    critic_batch_size: int = 256
+    """Minibatch of critic fits (not given in the paper)."""
+    critic_pretrain_steps: int = 10_000
+    """SGD steps of the critic's pre-training fit on B (not given in the paper)."""
+    critic_update_steps: int = 1_000
+    """SGD steps of each E_Update critic refit on B (not given in the paper)."""
+    buffer_size: int = 100_000
+    """Capacity of the buffer B (FIFO; the paper does not bound it)."""
+    actor_hidden: tuple[int, ...] = nets.ACTOR_HIDDEN
+    """Actor FC widths before the |A| output (Section 5.1: 512, 256, 256)."""
+    critic_hidden: tuple[int, ...] = nets.CRITIC_HIDDEN
+    """Critic FC widths before the scalar output (Section 5.1: 256, 128, 128)."""
+
+
+# -- presets -------------------------------------------------------------------------------------------
+
+
+def _paper(env: str) -> HybridConfig:
+    if env == "traffic_junction":
+        # Section 5.3: "Most hyper-parameters are the same ... E_Update = 100, and 20,000 samples".
+        return HybridConfig(env=env, demonstrator="always-gas", e_update=100, pretrain_samples=20_000, buffer_size=20_000)
+    return HybridConfig(env=env)
+
+
+def _quick(env: str) -> HybridConfig:
+    """Minutes on a CPU: the paper's method at a small budget (fewer pre-training samples and
+    episodes, more frequent critic refits, Adam instead of SGD for faster progress)."""
+    base = _paper(env)
+    if env == "traffic_junction":
+        return dataclasses.replace(
+            base, total_episodes=1_500, num_envs=16, pretrain_samples=8_000, buffer_size=8_000,
+            critic_pretrain_steps=1_500, critic_update_steps=300, e_update=100,
+            optimizer="adam", checkpoint_every=500,
+        )
+    return dataclasses.replace(
+        base, total_episodes=3_000, num_envs=32, pretrain_samples=20_000, buffer_size=40_000,
+        critic_pretrain_steps=2_000, critic_update_steps=500, e_update=100,
+        optimizer="adam", checkpoint_every=500,
+    )
+
+
+def _quick_rollout(env: str) -> HybridConfig:
+    """An extension, not the paper's setting: Alg. 1's Q by simulating the demonstrator to the
+    end of the episode (``lookahead_steps=0``: exact Q^D, the "ideal condition" of Eq. 6)
+    instead of r + λ V(s'); one best-response iteration. No critic is needed."""
+    return dataclasses.replace(
+        _quick(env), lookahead_steps=0, brd_start="demonstrator", brd_iterations=1,
+        total_episodes=400 if env == "combat" else 300, num_envs=16, checkpoint_every=100,
+        pretrain_critic=False,
+    )
+
+
+def _toy(env: str) -> HybridConfig:
+    """Seconds: a smoke test of the whole pipeline (tests, CI). Tiny networks, no learning."""
+    return dataclasses.replace(
+        _quick(env), total_episodes=8, num_envs=4, chunk_steps=4, pretrain_samples=64, buffer_size=512,
+        critic_pretrain_steps=10, critic_update_steps=5, e_update=4, brd_iterations=2,
+        actor_hidden=(16, 16, 16), critic_hidden=(16, 8, 8), checkpoint_every=4, eval_episodes=8,
+        bc_steps=20, demo_observations=64, tensorboard=False,
+    )
+
+
+def _without_d(make):
+    def preset(env: str) -> HybridConfig:
+        return dataclasses.replace(make(env), pretrain_critic=False, brd_start="actor")
+
+    return preset
+
+
+PRESETS = {
+    "paper": _paper,
+    "quick": _quick,
+    "traffic-junction": lambda env: _paper("traffic_junction"),
+    "wo-d": _without_d(_paper),
+    "quick-wo-d": _without_d(_quick),
+    "quick-rollout": _quick_rollout,
+    "toy": _toy,
+}
+
+
+# -- the compiled pieces ---------------------------------------------------------------------------------
+
+
+class Learner:
+    """Networks, optimisers and the jitted functions of one (task, static settings) pair."""
+
+    def __init__(self, task: Task, cfg: HybridConfig, demo_script: str | None) -> None:
+        self.task = task
+        self.actor_mod = nets.actor_module(task.num_actions, cfg.actor_hidden)
+        self.critic_mod = nets.critic_module(cfg.critic_hidden)
+        self.actor_tx = nets.make_optimizer(cfg.optimizer, cfg.actor_lr, cfg.momentum)
+        self.critic_tx = nets.make_optimizer(cfg.optimizer, cfg.critic_lr, cfg.momentum)
+        self.b = cfg.num_envs
+        demo = task.demonstrator(demo_script) if demo_script else None
+        self.demo_script_fn = demo
+        actor_mod = self.actor_mod
+
+        def demo_act(clone_vars, key, states, obs, legal):
+            """A^D(s) for a batch: the script, or the clone's legal argmax."""
+            if demo is not None:
+                return jax.vmap(demo)(jax.random.split(key, self.b), states).astype(jnp.int32)
+            return nets.actor_actions(actor_mod, clone_vars, obs, legal)
+
+        self.demo_act = demo_act
+        self.demo_chunk = jax.jit(functools.partial(self._demo_chunk, steps=cfg.chunk_steps))
+        self.train_chunk = jax.jit(
+            functools.partial(
+                self._train_chunk, steps=cfg.chunk_steps, gamma=cfg.gamma,
+                iterations=cfg.brd_iterations, start=cfg.brd_start,
+                lookahead=cfg.lookahead_steps if cfg.lookahead_steps > 0 else 1_000_000,
+            )
+        )
+        self.fit_critic = jax.jit(functools.partial(self._fit_critic, batch=cfg.critic_batch_size))
+        self.critic_values = jax.jit(self._critic_values)
+
+    # Phase 2's data: A^D plays from random start states.
+    def _demo_chunk(self, pool: Pool, clone_vars: Any, *, steps: int):
+        def act(carry, key, states, obs, legal):
+            return self.demo_act(carry, key, states, obs, legal), carry, {}
+
+        pool, _, out = pool_steps(self.task, act, pool, clone_vars, steps)
+        return pool, out
+
+    def value_fn(self, critic_vars: Any):
+        def v(states: Any) -> jax.Array:
+            feats = jax.vmap(self.task.value_features)(states)
+            return nets.apply_eval(self.critic_mod, critic_vars, feats)[:, 0]
+
+        return v
+
+    def _critic_values(self, critic_vars: Any, states: Any) -> jax.Array:
+        return self.value_fn(critic_vars)(states)
+
+    # Eq. 3 on the buffer B: minibatch SGD on (V(s) - V^D(s))^2.
+    def _fit_critic(self, critic: nets.NetState, states: Any, returns: jax.Array, size: jax.Array, key: jax.Array, num_steps: jax.Array, *, batch: int):
+        mod, tx, task = self.critic_mod, self.critic_tx, self.task
+
+        def one(i, c):
+            critic, total = c
+            idx = jax.random.randint(jax.random.fold_in(key, i), (batch,), 0, jnp.maximum(size, 1))
+            feats = jax.vmap(task.value_features)(jax.tree.map(lambda x: x[idx], states))
+
+            def loss_fn(params):
+                v, bs = nets.apply_train(mod, params, critic.batch_stats, feats)
+                return critic_loss(v[:, 0], returns[idx]), bs
+
+            (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(critic.params)
+            updates, opt = tx.update(grads, critic.opt_state, critic.params)
+            critic = critic.replace(params=optax.apply_updates(critic.params, updates), batch_stats=bs, opt_state=opt, step=critic.step + 1)
+            return critic, total + loss
+
+        critic, total = jax.lax.fori_loop(0, num_steps, one, (critic, jnp.zeros((), jnp.float32)))
+        return critic, total / jnp.maximum(num_steps, 1).astype(jnp.float32)
+
+    # Phase 3, K steps of Alg. 2 for all B games.
+    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, lookahead: int):
+        task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
+
+        def step_fn(key, state, actions):
+            _, s2, r, d, _ = task.step(key, state, actions)
+            return r, s2, d
+
+        def act(actor, key, states, obs, legal):
+            def continuation(keys, flat_states):
+                """The policy that plays on after the first simulated step (lookahead_steps != 1)."""
+                fobs = jax.vmap(task.observe)(flat_states)
+                flegal = jax.vmap(task.avail)(flat_states)
+                if start == "actor":
+                    return nets.actor_actions(mod, actor, fobs, flegal)
+                if self.demo_script_fn is not None:
+                    return jax.vmap(self.demo_script_fn)(keys, flat_states).astype(jnp.int32)
+                return nets.actor_actions(mod, clone_vars, fobs, flegal)
+
+            value_fn = self.value_fn(critic_vars) if lookahead < 1_000_000 else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
+            q_fn = make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, step_fn=step_fn, policy_fn=continuation)
+            k_demo, k_sim = jax.random.split(key)
+            n, na = legal.shape[1], legal.shape[2]
+            a_actor = nets.actor_actions(mod, actor, obs, legal)
+            # Alg. 1 from the actor's actions (Section 4.3) or from A^D.
+            a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, states, obs, legal)
+            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations)
+            # Eq. 7: advantage of every legal action of every agent that has a choice.
+            adv = advantages(res.q, legal)
+            weight = res.q_valid & (jnp.sum(legal, -1) >= 2)
+            flat_w = weight.reshape(-1)
+            any_w = jnp.any(flat_w)
+            bn_mask = jnp.where(any_w, flat_w, jnp.ones_like(flat_w))
+
+            # Eq. 8: theta <- theta + eta * sum_a grad log p(a|O) A(s, a), shared actor.
+            def loss_fn(params):
+                logits, bs = nets.apply_train(mod, params, actor.batch_stats, obs.reshape(b * n, -1), mask=bn_mask)
+                loss = actor_loss(logits, adv.reshape(b * n, na), legal.reshape(b * n, na), flat_w)
+                return loss, bs
+
+            (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(actor.params)
+            updates, opt = tx.update(grads, actor.opt_state, actor.params)
+            new = actor.replace(params=optax.apply_updates(actor.params, updates), batch_stats=bs, opt_state=opt, step=actor.step + 1)
+            actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
+            # Perform the (updated) actor's legal argmax.
+            actions = nets.actor_actions(mod, actor, obs, legal)
+            wf = weight.astype(jnp.float32)
+            nw = jnp.maximum(jnp.sum(wf), 1.0)
+            aux = {
+                "actor_loss": loss,
+                "brd_sweeps": res.sweeps.astype(jnp.float32),
+                "brd_changes": jnp.mean(res.changes.astype(jnp.float32)),
+                "q_gain": jnp.nanmean(res.q_final - res.q_init),
+                "q_final": jnp.nanmean(res.q_final),
+                "adv_max": jnp.sum(jnp.max(adv, -1) * wf) / nw,
+                "agree": jnp.sum((a_actor == res.actions) * wf) / nw,
+                "deciders": jnp.sum(wf) / b,
+            }
+            return actions, actor, aux
+
+        pool, actor, out = pool_steps(task, act, pool, actor, steps)
+        return pool, actor, out
+
+
+@functools.lru_cache(maxsize=8)
+def build_learner(task: Task, cfg: HybridConfig, demo_script: str | None) -> Learner:
+    # Only fields that shape the compiled functions matter; the rest of cfg is normalised away.
+    return Learner(task, cfg, demo_script)
+
+
+def _static_cfg(cfg: HybridConfig) -> HybridConfig:
+    """The config with every field that does not affect compilation reset to its default."""
+    keep = {
+        "num_envs", "chunk_steps", "gamma", "brd_iterations", "brd_start", "lookahead_steps", "optimizer", "actor_lr",
+        "critic_lr", "momentum", "critic_batch_size", "actor_hidden", "critic_hidden",
+    }
+    return HybridConfig(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name in keep})
+
+
+# -- training state ------------------------------------------------------------------------------------
+
+
+@dataclass
+class RunState:
+    """Everything a checkpoint holds (device pytrees + host buffers + counters)."""
+
+    actor: nets.NetState
+    critic: nets.NetState
+    clone: nets.NetState | None
+    pool: Pool
+    key: jax.Array  # raw uint32 key data
+    buffer: ReplayBuffer
+    assembler: EpisodeAssembler
+    phase: str = "pretrain"  # "pretrain" (Phases 1-2 to do) -> "joint" (Phase 3)
+    episodes: int = 0
+    env_steps: int = 0
+    iterations: int = 0
+    critic_updates: int = 0
+    next_critic_update: int = 0
+    critic_loss: float = float("nan")
+    demo_stats: dict[str, float] = dataclasses.field(default_factory=dict)
+    history: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+
+    def next_key(self) -> jax.Array:
+        k, sub = jax.random.split(key_of(self.key))
+        self.key = key_data(k)
+        return sub
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        out.update(prefixed(flatten_named(self.actor), "actor"))
+        out.update(prefixed(flatten_named(self.critic), "critic"))
+        if self.clone is not None:
+            out.update(prefixed(flatten_named(self.clone), "clone"))
+        out.update(prefixed(flatten_named(self.pool), "pool"))
+        out["key"] = np.asarray(self.key)
+        out.update(prefixed(self.buffer.to_arrays(), "buffer"))
+        out.update(prefixed(self.assembler.to_arrays(), "asm"))
+        for k, v in self.history.items():
+            out[f"history.{k}"] = np.asarray(v, np.float32)
+        return out
+
+    def meta(self) -> dict[str, Any]:
+        return {
+            "phase": self.phase,
+            "episodes": self.episodes,
+            "env_steps": self.env_steps,
+            "iterations": self.iterations,
+            "critic_updates": self.critic_updates,
+            "next_critic_update": self.next_critic_update,
+            "critic_loss": self.critic_loss,
+            "demo_stats": self.demo_stats,
+        }
+
+    def restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        self.actor = unflatten_named(self.actor, subtree(arrays, "actor"))
+        self.critic = unflatten_named(self.critic, subtree(arrays, "critic"))
+        if self.clone is not None:
+            self.clone = unflatten_named(self.clone, subtree(arrays, "clone"))
+        self.pool = unflatten_named(self.pool, subtree(arrays, "pool"))
+        self.key = jnp.asarray(arrays["key"])
+        self.buffer.load_arrays(subtree(arrays, "buffer"))
+        self.assembler.load_arrays(subtree(arrays, "asm"))
+        self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
+        for k in ("phase", "episodes", "env_steps", "iterations", "critic_updates", "next_critic_update", "critic_loss", "demo_stats"):
+            setattr(self, k, meta[k])
+
+
+def _vars(net: nets.NetState | None) -> Any:
+    return None if net is None else {"params": net.params, "batch_stats": net.batch_stats}
+
+
+# -- the run ---------------------------------------------------------------------------------------------
+
+
+def train(cfg: HybridConfig) -> int:
+    from hybridmarl.algos import demos as D
+    from hybridmarl.algos import evaluate as E
+    from hybridmarl.algos import plots
+    from hybridmarl.algos.logger import Progress, RunLogger
+
+    # ---- Phase 0: set-up ------------------------------------------------------------------------
+    t_start = time.time()
+    spec = cfg.task_spec()
+    task = make_task(spec)
+    run_dir = resolve_run_dir(ALGO, cfg)
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is not None and not cfg.resume:
+        raise TaskError(f"{run_dir} already holds checkpoints: pass --resume to continue it, or choose another --run-dir")
+    log = RunLogger(run_dir, tensorboard=cfg.tensorboard)
+    dataset = None
+    demo_script: str | None = None
+    if cfg.demonstrator_is_dataset():
+        dataset = D.load_dataset(cfg.demonstrator, expect=task)
+    elif cfg.clone_script:
+        pass  # cloned below (Phase 1)
+    else:
+        demo_script = cfg.demonstrator_name()
+    learner = build_learner(task, _static_cfg(cfg), demo_script)
+    key = jax.random.key(cfg.seed)
+    k_actor, k_critic, k_clone, k_pool, k_run = jax.random.split(key, 5)
+    actor = nets.init_net(learner.actor_mod, k_actor, task.obs_dim, learner.actor_tx)
+    critic = nets.init_net(learner.critic_mod, k_critic, task.critic_dim, learner.critic_tx)
+    needs_clone = demo_script is None
+    clone = nets.init_net(learner.actor_mod, k_clone, task.obs_dim, learner.actor_tx) if needs_clone else None
+    template_state = task.reset(jax.random.key(0))[1]
+    st = RunState(
+        actor=actor, critic=critic, clone=clone, pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
+        buffer=ReplayBuffer(cfg.buffer_size, template_state), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma),
+        next_critic_update=cfg.e_update,
+    )
+    config_doc = {
+        "algo": ALGO,
+        "config": {**config_to_dict(cfg), "demonstrator_name": cfg.demonstrator_name(), "eval_enemy_name": cfg.eval_enemy_name()},
+        "task": spec.to_dict(),
+        "networks": {"actor_params": nets.num_params(actor.params), "critic_params": nets.num_params(critic.params)},
+        "versions": {"jax": jax.__version__, "hybridmarl": _version()},
+    }
+    if ckpt is not None:
+        arrays, meta = load_checkpoint(ckpt)
+        st.restore(arrays, meta)
+        log.resume_at(st.episodes)
+        print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
+    log.write_config(config_doc)
+
+    def save() -> None:
+        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), "algo": ALGO, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
+
+    if st.phase == "pretrain":
+        # ---- Phase 1: the demonstrator A^D (Section 3) ----------------------------------------
+        if needs_clone:
+            if dataset is None:
+                dataset = D.collect(spec, cfg.demonstrator_name(), cfg.demo_observations, seed=cfg.seed, gamma=cfg.gamma)
+            rows = D.bc_rows(dataset)
+            assert st.clone is not None
+            st.clone, losses = D.fit_bc(st.clone, learner.actor_mod, (cfg.optimizer, cfg.actor_lr), rows, st.next_key(), cfg.bc_steps, cfg.bc_batch_size)
+            check_finite("behavioural-cloning loss", float(losses[-1]) if losses.size else 0.0, "the end of cloning")
+            acc = D.bc_accuracy(st.clone, learner.actor_mod, rows)
+            print(f"A^D = behavioural clone of {dataset.size} observations: final loss {losses[-1]:.4f}, accuracy {acc:.3f}")
+        # ---- Phase 2: critic pre-training (Section 4.1, Eq. 3) ----------------------------------
+        if cfg.pretrain_critic and cfg.pretrain_samples > 0 and cfg.lookahead_steps != 0:
+            demo_pool = new_pool(task, st.next_key(), cfg.num_envs)
+            asm = EpisodeAssembler(cfg.num_envs, cfg.gamma)
+            got, stats_all = 0, {}
+            t0 = time.time()
+            while got < cfg.pretrain_samples:
+                demo_pool, out = learner.demo_chunk(demo_pool, _vars(st.clone))
+                states, returns, stats = asm.add(out)
+                st.buffer.add(states, returns)
+                got += int(returns.size)
+                for k, v in stats.items():
+                    stats_all.setdefault(k, []).extend(v.tolist())
+            st.demo_stats = {k: float(np.mean(v)) for k, v in stats_all.items() if v}
+            st.demo_stats["episodes"] = float(len(next(iter(stats_all.values()), [])))
+            st.critic, closs = learner.fit_critic(st.critic, *st.buffer.device_arrays(), st.next_key(), jnp.asarray(cfg.critic_pretrain_steps))
+            st.critic_loss = float(closs)
+            check_finite("critic pre-training loss", st.critic_loss, "pre-training")
+            print(
+                f"critic pre-trained on {st.buffer.size} (s, V^D) pairs from {int(st.demo_stats['episodes'])} demonstrator episodes "
+                f"({time.time() - t0:.0f}s): MSE {st.critic_loss:.5f}; demonstrator: "
+                + ", ".join(f"{k} {v:.3f}" for k, v in st.demo_stats.items() if k != "episodes")
+            )
+        st.phase = "joint"
+        save()
+
+    # ---- Phase 3: the joint update (Alg. 2) -----------------------------------------------------
+    eval_task = make_task(dataclasses.replace(spec, enemy=cfg.eval_enemy_name())) if task.kind == "combat" else task
+    prog = Progress(cfg.total_episodes, f"{ALGO} {spec.label()}", enabled=cfg.progress, start=st.episodes)
+    primary = "won" if task.kind == "combat" else "failed"
+    secondary = "terminal_hp_reward" if task.kind == "combat" else "return"
+    next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+    next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else None
+    t_phase = time.time()
+    steps_at_start = st.env_steps
+    try:
+        while st.phase == "joint" and st.episodes < cfg.total_episodes:
+            t0 = time.time()
+            st.pool, st.actor, out = learner.train_chunk(st.pool, st.actor, _vars(st.critic), _vars(st.clone))
+            states, returns, stats = st.assembler.add(out)
+            st.buffer.add(states, returns)
+            n_new = int(next(iter(stats.values())).shape[0]) if stats else 0
+            first_ep = st.episodes
+            st.episodes += n_new
+            st.env_steps += cfg.chunk_steps * cfg.num_envs
+            st.iterations += 1
+            for k, v in stats.items():
+                st.history.setdefault(k, []).extend(v.tolist())
+            aux = {k: float(np.nanmean(np.asarray(v))) for k, v in out["aux"].items()}
+            check_finite("actor loss", aux["actor_loss"], f"episode {st.episodes}")
+            check_finite("actor parameters", st.actor.params, f"episode {st.episodes}")
+            # Every E_Update episodes: refit the critic on B (Eq. 3).
+            if st.episodes >= st.next_critic_update and cfg.lookahead_steps != 0:
+                st.critic, closs = learner.fit_critic(st.critic, *st.buffer.device_arrays(), st.next_key(), jnp.asarray(cfg.critic_update_steps))
+                st.critic_loss = float(closs)
+                st.critic_updates += 1
+                st.next_critic_update = (st.episodes // cfg.e_update + 1) * cfg.e_update
+                check_finite("critic loss", st.critic_loss, f"episode {st.episodes}")
+                check_finite("critic parameters", st.critic.params, f"episode {st.episodes}")
+            # Logs.
+            dt = time.time() - t0
+            recent = {k: float(np.mean(v[-100:])) for k, v in st.history.items() if v}
+            row = {
+                "episodes": st.episodes, "env_steps": st.env_steps, "iteration": st.iterations, **aux,
+                "critic_loss": st.critic_loss, "critic_updates": st.critic_updates,
+                **{f"{k}_100": v for k, v in recent.items()}, "chunk_s": dt,
+                "env_steps_per_s": cfg.chunk_steps * cfg.num_envs / max(dt, 1e-9), "wall_s": time.time() - t_start,
+                "cpu_s": time.process_time(),
+            }
+            log.train.write([row])
+            log.scalars(st.episodes, row)
+            log.episodes.write([
+                {"episode": first_ep + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}}
+                for i in range(n_new)
+            ])
+            status = f"{primary}@100 {recent.get(primary, float('nan')):.2f}  {secondary}@100 {recent.get(secondary, float('nan')):+.3f}  critic {st.critic_loss:.4f}"
+            prog.update(st.episodes, status)
+            if next_eval is not None and st.episodes >= next_eval:
+                res = E.evaluate_task(eval_task, learner.actor_mod, _vars(st.actor), n=cfg.eval_episodes, seed=cfg.seed + 1)
+                log.scalars(st.episodes, {k: v for k, v in res.items() if isinstance(v, float)}, prefix="eval")
+                next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every
+            if st.episodes >= next_ckpt:
+                save()
+                next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+    except TrainingDiverged as e:
+        prog.close()
+        log.close()
+        print(f"hybridmarl: training stopped: {e}")
+        return 3
+    prog.close()
+    save()
+    train_s = time.time() - t_phase
+    sps = (st.env_steps - steps_at_start) / max(train_s, 1e-9)
+
+    # ---- Phase 4: evaluation (Section 5.1) --------------------------------------------------------
+    result = E.evaluate_task(eval_task, learner.actor_mod, _vars(st.actor), n=cfg.eval_episodes, seed=cfg.seed + 1)
+    result.update(
+        enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes,
+        env_steps_per_s=sps, wall_s=time.time() - t_start, cpu_s=time.process_time(),
+    )
+    (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
+    log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
+    demo_level = st.demo_stats.get(secondary)
+    plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{ALGO}: {spec.label()}, A^D = {cfg.demonstrator_name()}", baseline=demo_level)
+    log.close()
+    print(_result_line(task, result))
+    return 0
+
+
+def _result_line(task: Task, r: dict[str, Any]) -> str:
+    if task.kind == "combat":
+        return f"eval vs {r['enemy']} ({r['n']} battles): W {r['W']:.2f} [{r['W_ci95'][0]:.2f}, {r['W_ci95'][1]:.2f}]  R {r['R']:+.3f} [{r['R_ci95'][0]:+.3f}, {r['R_ci95'][1]:+.3f}]"
+    return f"eval ({r['n']} episodes): failure rate {r['failure_rate']:.3f} [{r['failure_rate_ci95'][0]:.3f}, {r['failure_rate_ci95'][1]:.3f}]  return {r['R']:+.2f}"
+
+
+def _version() -> str:
+    from hybridmarl import __version__
+
+    return __version__
+
+
+__all__ = ["ALGO", "PRESETS", "HybridConfig", "Learner", "build_learner", "train"]

@@ -1,0 +1,210 @@
+"""Demonstration datasets (record, save/load round trip, restart from a recorded state,
+validation errors), the replay buffer and episode assembly, checkpoints (round trip, pruning,
+atomicity) and exact resume of a training run."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from safetensors.numpy import save_file
+
+from hybridmarl.algos import checkpoint as C
+from hybridmarl.algos import demos as D
+from hybridmarl.algos.losses import discounted_returns
+from hybridmarl.algos.rollout import EpisodeAssembler, ReplayBuffer
+from hybridmarl.algos.tasks import TaskSpec, flatten_named, make_task, unflatten_named
+from hybridmarl.cli import main
+
+TJ = TaskSpec(env="traffic_junction")
+
+
+@pytest.fixture(scope="module")
+def tj_dataset():
+    return D.collect(TJ, "always-gas", 90, seed=3, num_envs=4)
+
+
+def test_collect_and_round_trip(tj_dataset, tmp_path):
+    ds = tj_dataset
+    assert ds.size == 90
+    a = ds.arrays
+    assert a["obs"].shape == (90, 10, 259) and a["legal"].shape == (90, 10, 2)
+    assert a["actions"].dtype == np.int32 and a["active"].dtype == np.bool_
+    # TJ episodes are 40 steps: records 0..39 are episode 0, t = 0..39.
+    np.testing.assert_array_equal(a["t"][:40], np.arange(40))
+    assert a["episode"][0] == 0 and a["episode"][40] == 1
+    # always-gas: gas exactly for active cars; returns match Eq. 1 on the recorded rewards.
+    np.testing.assert_array_equal(a["actions"], a["active"].astype(np.int32))
+    np.testing.assert_allclose(a["return"][:40], discounted_returns(a["reward"][:40], 0.995), rtol=1e-5)
+    path = D.save_dataset(ds, tmp_path / "d.safetensors")
+    back = D.load_dataset(path, expect=make_task(TJ))
+    assert back.meta == json.loads(json.dumps(ds.meta))
+    for k, v in ds.arrays.items():
+        np.testing.assert_array_equal(back.arrays[k], v)
+
+
+def test_restart_from_a_recorded_state(tj_dataset):
+    """The recorded state reproduces the recorded next observation when stepped."""
+    task = make_task(TJ)
+    ds = tj_dataset
+    s5 = D.state_at(ds, 5, task)
+    np.testing.assert_allclose(np.asarray(task.observe(s5)), ds.arrays["obs"][5])
+    s6 = D.state_at(ds, 6, task)
+    assert int(s6.t) == 6 and int(s5.t) == 5
+    batch = D.state_at(ds, np.arange(3), task)
+    assert batch.pos.shape == (3, 10)
+
+
+def _write(tmp_path, ds, name="bad.safetensors"):
+    p = tmp_path / name
+    save_file({k: np.ascontiguousarray(v) for k, v in ds.arrays.items()}, str(p), metadata={"hybridmarl": json.dumps(ds.meta)})
+    return p
+
+
+def _variant(ds, arrays=None, meta=None):
+    return D.Dataset(arrays={**ds.arrays, **(arrays or {})}, meta={**ds.meta, **(meta or {})})
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda ds: _variant(ds, meta={"version": 99}), "dataset version 99 is not supported"),
+        (lambda ds: _variant(ds, meta={"format": "other"}), "expected 'hybridmarl-demos'"),
+        (lambda ds: _variant(ds, arrays={"actions": ds.arrays["actions"].astype(np.int64)}), "array 'actions' has dtype int64, expected int32"),
+        (lambda ds: _variant(ds, arrays={"obs": ds.arrays["obs"][:, :, :5]}), "array 'obs' has shape (90, 10, 5), expected (90, 10, 259)"),
+        (lambda ds: _variant(ds, arrays={"actions": np.where(np.arange(90)[:, None] == 7, 5, ds.arrays["actions"]).astype(np.int32)}), "action 5 out of range 0..1 at record 7, agent 0"),
+        (lambda ds: _variant(ds, arrays={"actions": np.ones_like(ds.arrays["actions"])}), "is illegal under the record's mask"),
+        (lambda ds: _variant(ds, arrays={"episode": ds.arrays["episode"][::-1].copy()}), "non-decreasing"),
+    ],
+)
+def test_validation_errors(tj_dataset, tmp_path, change, message):
+    p = _write(tmp_path, change(tj_dataset))
+    with pytest.raises(D.DatasetError) as e:
+        D.load_dataset(p)
+    assert message in str(e.value) and "\n" not in str(e.value)
+
+
+def test_validation_missing_and_unreadable(tj_dataset, tmp_path, capsys):
+    arrays = {k: v for k, v in tj_dataset.arrays.items() if k != "legal"}
+    p = _write(tmp_path, D.Dataset(arrays=arrays, meta=tj_dataset.meta))
+    with pytest.raises(D.DatasetError, match="missing array 'legal'"):
+        D.load_dataset(p)
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"not a file at all")
+    with pytest.raises(D.DatasetError, match="not a safetensors file"):
+        D.load_dataset(junk)
+    with pytest.raises(D.DatasetError, match="no such dataset file"):
+        D.load_dataset(tmp_path / "nope.safetensors")
+    # The CLI: one line, exit code 2.
+    assert main(["demos", "info", str(p)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing array 'legal'" in err[0]
+    # Shape mismatch against the task it is used for.
+    good = D.save_dataset(tj_dataset, tmp_path / "good.safetensors")
+    with pytest.raises(D.DatasetError, match="recorded for 10 agents"):
+        D.load_dataset(good, expect=make_task(TaskSpec(env="traffic_junction", num_cars=4)))
+
+
+def test_demos_cli_collect_and_info(tmp_path, capsys):
+    out = tmp_path / "tj.safetensors"
+    assert main(["demos", "collect", "--env", "traffic_junction", "--demonstrator", "always-gas", "--n", "90", "--seed", "3", "--num-envs", "4", "--out", str(out)]) == 0
+    assert main(["demos", "info", str(out)]) == 0
+    info = json.loads(capsys.readouterr().out.split("\n", 1)[1])
+    assert info["observations"] == 90 and info["episodes"] == 3
+    assert main(["demos", "collect", "--env", "traffic_junction", "--demonstrator", "nope", "--out", str(tmp_path / "x.safetensors")]) == 2
+
+
+def test_bc_fits_the_demonstrator(tj_dataset):
+    from hybridmarl.algos import networks as nets
+
+    task = make_task(TJ)
+    rows = D.bc_rows(tj_dataset)
+    assert rows[0].shape[0] == int((tj_dataset.arrays["legal"].sum(-1) >= 2).sum())
+    mod = nets.actor_module(task.num_actions, (16, 16, 16))
+    actor = nets.init_net(mod, jax.random.key(0), task.obs_dim, nets.make_optimizer("adam", 1e-2))
+    actor, losses = D.fit_bc(actor, mod, ("adam", 1e-2), rows, jax.random.key(1), 40, 64)
+    assert losses[-5:].mean() < losses[:5].mean()
+    assert D.bc_accuracy(actor, mod, rows) == 1.0  # always-gas is trivial to imitate
+
+
+def test_episode_assembler_and_buffer():
+    asm = EpisodeAssembler(num_envs=2, gamma=0.5)
+    # Slot 0 finishes after 2 steps, slot 1 after 3 (split over two blocks).
+    f1 = {"state.x": np.asarray([[1, 10], [2, 20]])}
+    r1 = np.asarray([[1.0, 0.0], [2.0, 0.0]])
+    d1 = np.asarray([[False, False], [True, False]])
+    rows, ret, stats = asm.add_fields(f1, r1, d1, {"won": np.asarray([[0, 0], [1, 0]])})
+    np.testing.assert_array_equal(rows["state.x"], [1, 2])
+    np.testing.assert_allclose(ret, [2.0, 2.0])  # 1 + 0.5 * 2, 2
+    assert stats["won"].tolist() == [1.0] and stats["return"].tolist() == [3.0]
+    saved = asm.to_arrays()
+    asm2 = EpisodeAssembler(num_envs=2, gamma=0.5)
+    asm2.load_arrays(saved)
+    f2 = {"state.x": np.asarray([[3, 30]])}
+    rows, ret, _ = asm2.add_fields(f2, np.asarray([[0.0, 4.0]]), np.asarray([[False, True]]), {"won": np.zeros((1, 2))})
+    np.testing.assert_array_equal(rows["state.x"], [10, 20, 30])
+    np.testing.assert_allclose(ret, [1.0, 2.0, 4.0])
+    np.testing.assert_array_equal(rows["t"], [0, 1, 2])
+
+    buf = ReplayBuffer(4, {"x": jnp.zeros((), jnp.int32)})
+    buf.add({"state.x": np.arange(3)}, np.arange(3, dtype=np.float32))
+    buf.add({"x": np.arange(3, 6)}, np.arange(3, 6, dtype=np.float32))
+    assert buf.size == 4 and buf.ptr == 2
+    np.testing.assert_array_equal(buf.states["x"], [4, 5, 2, 3])  # FIFO: 0 and 1 dropped
+    buf2 = ReplayBuffer(4, {"x": jnp.zeros((), jnp.int32)})
+    buf2.load_arrays(buf.to_arrays())
+    tree, returns, size = buf2.device_arrays()
+    np.testing.assert_array_equal(np.asarray(tree["x"]), [4, 5, 2, 3]) and int(size) == 4
+
+
+def test_checkpoint_round_trip_and_pruning(tmp_path):
+    tree = {"w": jnp.arange(6.0).reshape(2, 3), "flag": jnp.asarray([True, False]), "key": jax.random.key(7), "n": jnp.asarray(3, jnp.int32)}
+    for step in (1, 2, 3, 4):
+        C.save_checkpoint(tmp_path, step, C.prefixed(flatten_named(tree), "t"), {"note": step}, keep=2)
+    ck = C.list_checkpoints(tmp_path)
+    assert [p.name for p in ck] == ["ckpt_000000003", "ckpt_000000004"]
+    assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.startswith(".tmp")]
+    arrays, meta = C.load_checkpoint(ck[-1])
+    assert meta["note"] == 4 and meta["step"] == 4
+    back = unflatten_named(tree, C.subtree(arrays, "t"))
+    np.testing.assert_array_equal(back["w"], tree["w"])
+    assert back["flag"].dtype == jnp.bool_
+    assert jnp.array_equal(jax.random.key_data(back["key"]), jax.random.key_data(tree["key"]))
+    # A directory without meta.json (a crash mid-write under a final name) is ignored.
+    (tmp_path / "checkpoints" / "ckpt_000000009").mkdir()
+    assert C.latest_checkpoint(tmp_path).name == "ckpt_000000004"
+    with pytest.raises(C.CheckpointError, match="missing meta.json"):
+        C.load_checkpoint(tmp_path / "checkpoints" / "ckpt_000000009")
+    with pytest.raises(ValueError, match="shape"):
+        unflatten_named({"w": jnp.zeros((3, 3))}, {"w": np.zeros((2, 3), np.float32)})
+
+
+def test_exact_resume(tj_dataset, tmp_path):
+    """N episodes straight == N/2 episodes, stop, --resume, N/2 more (CPU): identical state.
+    (The demonstrator is a dataset, i.e. its behavioural clone, as in test_algos_cli.)"""
+    from hybridmarl.algos.checkpoint import latest_checkpoint, load_checkpoint
+    from hybridmarl.algos.hybrid import PRESETS, train
+
+    data = D.save_dataset(tj_dataset, tmp_path / "tj.safetensors")
+    base = dataclasses.replace(PRESETS["toy"]("traffic_junction"), demonstrator=str(data), progress=False, checkpoint_every=4)
+    assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "straight"))) == 0
+    assert train(dataclasses.replace(base, total_episodes=4, run_dir=str(tmp_path / "split"))) == 0
+    assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "split"), resume=True)) == 0
+    a, ma = load_checkpoint(latest_checkpoint(tmp_path / "straight"))
+    b, mb = load_checkpoint(latest_checkpoint(tmp_path / "split"))
+    assert ma["episodes"] == mb["episodes"] == 8 and ma["critic_updates"] == mb["critic_updates"] == 2
+    assert set(a) == set(b)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    # Logs read as one uninterrupted run.
+    rows = (tmp_path / "split" / "episodes.csv").read_text().strip().splitlines()
+    assert len(rows) == 1 + 8
+    # Without --resume an existing run is refused.
+    from hybridmarl.algos.tasks import TaskError
+
+    with pytest.raises(TaskError, match="--resume"):
+        train(dataclasses.replace(base, run_dir=str(tmp_path / "split")))
