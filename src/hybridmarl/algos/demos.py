@@ -286,7 +286,7 @@ def validate(ds: Dataset, *, expect: Task | None = None) -> str | None:
 
 def state_at(ds: Dataset, index: int | np.ndarray, task: Task) -> Any:
     """The environment state of record(s) ``index`` (restart the simulation from it)."""
-    template = task.reset(jax.random.key(0))[1]
+    template = task.state_template()
     st = ds.states()
     if np.ndim(index) == 0:
         return unflatten_named(template, {k: v[int(index)] for k, v in st.items()})

@@ -186,7 +186,7 @@ def load_policy(run_dir: str | Path) -> PolicyBundle:
     task = make_task(spec)
     hidden = tuple(doc["config"].get("actor_hidden", nets.ACTOR_HIDDEN))
     module = nets.actor_module(task.num_actions, hidden)
-    template = module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False)
+    template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False))
     try:
         variables = {
             "params": unflatten_named(template["params"], subtree(arrays, "actor.params")),

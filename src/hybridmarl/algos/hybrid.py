@@ -457,7 +457,7 @@ def train(cfg: HybridConfig) -> int:
     critic = nets.init_net(learner.critic_mod, k_critic, task.critic_dim, learner.critic_tx)
     needs_clone = demo_script is None
     clone = nets.init_net(learner.actor_mod, k_clone, task.obs_dim, learner.actor_tx) if needs_clone else None
-    template_state = task.reset(jax.random.key(0))[1]
+    template_state = task.state_template()
     st = RunState(
         actor=actor, critic=critic, clone=clone, pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
         buffer=ReplayBuffer(cfg.buffer_size, template_state), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma),
@@ -578,7 +578,9 @@ def train(cfg: HybridConfig) -> int:
     except TrainingDiverged as e:
         prog.close()
         log.close()
-        print(f"hybridmarl: training stopped: {e}")
+        import sys
+
+        print(f"hybridmarl: training stopped: {e}", file=sys.stderr)
         return 3
     prog.close()
     save()

@@ -21,6 +21,7 @@ Batch norm, train vs eval (Flax linen ``BatchNorm``):
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any, cast
 
@@ -81,7 +82,7 @@ def make_optimizer(name: str, lr: float, momentum: float = 0.0) -> optax.Gradien
 
 
 def init_net(module: MLP, key: jax.Array, in_dim: int, tx: optax.GradientTransformation) -> NetState:
-    variables = module.init(key, jnp.zeros((2, in_dim), jnp.float32), train=False)
+    variables = init_variables(module, key, in_dim)
     params = variables["params"]
     return NetState(
         params=params,
@@ -89,6 +90,17 @@ def init_net(module: MLP, key: jax.Array, in_dim: int, tx: optax.GradientTransfo
         opt_state=tx.init(params),
         step=jnp.zeros((), jnp.int32),
     )
+
+
+def init_variables(module: MLP, key: jax.Array, in_dim: int) -> dict:
+    """``module.init`` as one compiled call (eager initialisation is slow)."""
+    return _init_fn(module_spec(module), in_dim)(key)
+
+
+@functools.lru_cache(maxsize=32)
+def _init_fn(spec: tuple[tuple[int, ...], int], in_dim: int):
+    module = from_spec(spec)
+    return jax.jit(lambda key: module.init(key, jnp.zeros((2, in_dim), jnp.float32), train=False))
 
 
 def apply_eval(module: MLP, net: NetState | dict, x: jax.Array) -> jax.Array:

@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -34,9 +35,18 @@ class Pool(struct.PyTreeNode):
 
 
 def new_pool(task: Task, key: jax.Array, num_envs: int) -> Pool:
-    k_reset, k_pool = jax.random.split(key)
-    obs, states = jax.vmap(task.reset)(jax.random.split(k_reset, num_envs))
-    return Pool(states=states, obs=obs, key=jax.random.key_data(k_pool))
+    """B fresh games (one compiled call; resetting eagerly would be very slow)."""
+    return _new_pool_fn(task, num_envs)(key)
+
+
+@functools.lru_cache(maxsize=16)
+def _new_pool_fn(task: Task, num_envs: int):
+    def make(key: jax.Array) -> Pool:
+        k_reset, k_pool = jax.random.split(key)
+        obs, states = jax.vmap(task.reset)(jax.random.split(k_reset, num_envs))
+        return Pool(states=states, obs=obs, key=jax.random.key_data(k_pool))
+
+    return jax.jit(make)
 
 
 def select_tree(mask: jax.Array, new: Any, old: Any) -> Any:

@@ -149,6 +149,12 @@ class Task:
 
     # -- environment ------------------------------------------------------------------------------
 
+    def state_template(self) -> Any:
+        """Shapes and dtypes of one env state (``jax.ShapeDtypeStruct`` leaves; nothing runs)."""
+        if not hasattr(self, "_template"):
+            self._template = jax.eval_shape(self.reset, jax.random.key(0))[1]
+        return self._template
+
     def reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
         obs, state = self.env.reset(key, self.params)
         return obs.reshape((self.num_agents, -1)), state
@@ -236,11 +242,17 @@ def make_task(spec: TaskSpec) -> Task:
 
 
 def flatten_named(tree: Any, prefix: str = "") -> dict[str, np.ndarray]:
-    """A pytree as ``{path: numpy array}`` (typed PRNG keys become their uint32 key data)."""
+    """A pytree as ``{path: numpy array}`` (typed PRNG keys become their uint32 key data;
+    ``jax.ShapeDtypeStruct`` leaves become zeros of that shape)."""
     out: dict[str, np.ndarray] = {}
     leaves, _ = jax.tree_util.tree_flatten_with_path(tree)
     for path, leaf in leaves:
         name = prefix + jax.tree_util.keystr(path, simple=True, separator=".")
+        if isinstance(leaf, jax.ShapeDtypeStruct):
+            if jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+                leaf = jax.eval_shape(jax.random.key_data, leaf)
+            out[name] = np.zeros(leaf.shape, leaf.dtype)
+            continue
         if isinstance(leaf, jax.Array) and jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key):
             leaf = jax.random.key_data(leaf)
         out[name] = np.asarray(leaf)
@@ -260,11 +272,12 @@ def unflatten_named(template: Any, arrays: dict[str, np.ndarray], prefix: str = 
         if name not in arrays:
             raise KeyError(f"missing array {name!r}")
         arr = np.asarray(arrays[name])
-        is_key = isinstance(leaf, jax.Array) and jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key)
-        ref = jax.random.key_data(leaf) if is_key else np.asarray(leaf)
-        if arr.shape[batch_dims:] != ref.shape:
-            raise ValueError(f"array {name!r} has shape {arr.shape}, expected (...,) + {ref.shape}")
-        if arr.dtype != ref.dtype:
-            raise ValueError(f"array {name!r} has dtype {arr.dtype}, expected {ref.dtype}")
+        is_key = jnp.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+        ref = jax.eval_shape(jax.random.key_data, leaf) if is_key else leaf
+        ref_shape, ref_dtype = tuple(np.shape(ref)), np.dtype(ref.dtype)
+        if arr.shape[batch_dims:] != ref_shape:
+            raise ValueError(f"array {name!r} has shape {arr.shape}, expected (...,) + {ref_shape}")
+        if arr.dtype != ref_dtype:
+            raise ValueError(f"array {name!r} has dtype {arr.dtype}, expected {ref_dtype}")
         new.append(jax.random.wrap_key_data(jnp.asarray(arr)) if is_key else jnp.asarray(arr))
     return jax.tree_util.tree_unflatten(treedef, new)
