@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -127,3 +129,29 @@ def test_brd_on_traffic_junction_with_a_critic():
         assert np.all(np.diff(seq) >= -1e-4), seq
         assert seq.size == 0 or seq[-1] >= float(res.q_init[b]) - 1e-4
     assert np.take_along_axis(np.asarray(legal), np.asarray(res.actions)[..., None], -1).all()
+
+
+def test_min_gain_keeps_near_ties_at_the_start_action():
+    """With a margin, a switch needs a gain above it: the result is an epsilon-equilibrium (no
+    unilateral deviation gains more than the margin), Q still never decreases, and a huge margin
+    returns the start actions unchanged."""
+    w, legal = _toy(1)
+    a0 = jnp.ones((B, N), jnp.int32).at[2].set(0).at[0, 1].set(1)
+    lg = np.asarray(legal)
+    for gain in (0.5, 1e9):
+        fn = jax.jit(functools.partial(best_response_dynamics, _pairwise_q(w), iterations=7, min_gain=gain))
+        res = fn(jax.random.split(jax.random.key(0), B), jnp.asarray(w), a0, legal)
+        acts = np.asarray(res.actions)
+        for b in range(B):
+            tr = np.asarray(res.trace)[:, b]
+            seq = tr[~np.isnan(tr)]
+            assert np.all(np.diff(seq) >= -1e-5)
+            base = _brute_q(w[b], acts[b])
+            for g in range(N):
+                for a in np.flatnonzero(lg[b, g]):
+                    dev = acts[b].copy()
+                    dev[g] = a
+                    assert _brute_q(w[b], dev) <= base + gain + 1e-4
+        if gain == 1e9:
+            np.testing.assert_array_equal(acts, np.where(np.take_along_axis(lg, np.asarray(a0)[..., None], -1)[..., 0], np.asarray(a0), lg.argmax(-1)))
+            assert int(np.asarray(res.changes).sum()) == 0

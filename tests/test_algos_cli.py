@@ -63,6 +63,14 @@ def test_train_and_eval_combat(tmp_path, capsys):
     assert res["n"] == 8 and res["enemy"] == "attack-weakest" and res["scenario"] == "m3v3"
     assert 0.0 <= res["W"] <= 1.0 and res["W_ci95"][0] <= res["W"] <= res["W_ci95"][1]
     assert res["R_ci95"][0] <= res["R"] <= res["R_ci95"][1]
+    # The main job on the finished run (reused, not retrained): D vs ours table, files, replay.
+    assert main(["quickstart", "--run-dir", str(run), "--scenario", "m3v3", "--n", "4", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "reusing it" in out and "| D |" in out and "| Ours |" in out
+    doc = json.loads((run / "comparison.json").read_text())
+    assert doc["n"] == 4 and doc["enemy"] == "attack-weakest" and set(doc["rows"]) == {"D", "Ours"}
+    assert (run / "replay.gif").stat().st_size > 1000 and (run / "comparison.md").is_file()
+    assert main(["replay", "--run-dir", str(tmp_path / "nothing"), "--out", str(tmp_path / "x.gif")]) == 2
 
 
 def test_bad_input_one_line_exit_2(tmp_path, capsys):

@@ -183,14 +183,20 @@ def test_checkpoint_round_trip_and_pruning(tmp_path):
         unflatten_named({"w": jnp.zeros((3, 3))}, {"w": np.zeros((2, 3), np.float32)})
 
 
-def test_exact_resume(tj_dataset, tmp_path):
+@pytest.mark.parametrize("actor_buffer", [0, 64])
+def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
     """N episodes straight == N/2 episodes, stop, --resume, N/2 more (CPU): identical state.
-    (The demonstrator is a dataset, i.e. its behavioural clone, as in test_algos_cli.)"""
+    (The demonstrator is a dataset, i.e. its behavioural clone, as in test_algos_cli.) With
+    ``actor_buffer`` the actor learns between chunks from the buffer of Alg. 1 labels, which the
+    checkpoint must carry too."""
     from hybridmarl.algos.checkpoint import latest_checkpoint, load_checkpoint
     from hybridmarl.algos.hybrid import PRESETS, train
 
     data = D.save_dataset(tj_dataset, tmp_path / "tj.safetensors")
-    base = dataclasses.replace(PRESETS["toy"]("traffic_junction"), demonstrator=str(data), progress=False, checkpoint_every=4)
+    base = dataclasses.replace(
+        PRESETS["toy"]("traffic_junction"), demonstrator=str(data), progress=False, checkpoint_every=4,
+        actor_buffer=actor_buffer, actor_target="best" if actor_buffer else "advantage",
+    )
     assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "straight"))) == 0
     assert train(dataclasses.replace(base, total_episodes=4, run_dir=str(tmp_path / "split"))) == 0
     assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "split"), resume=True)) == 0
@@ -200,6 +206,8 @@ def test_exact_resume(tj_dataset, tmp_path):
     assert set(a) == set(b)
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    if actor_buffer:
+        assert int(a["labels.size"]) > 0 and a["labels.obs"].shape[0] == actor_buffer
     # Logs read as one uninterrupted run.
     rows = (tmp_path / "split" / "episodes.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + 8

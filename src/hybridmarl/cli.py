@@ -300,15 +300,17 @@ def main(argv: list[str] | None = None) -> int:
         "train": None,
         "eval": None,
         "demos": None,
+        "quickstart": None,
     }
     if not args or args[0] in ("-h", "--help"):
         print(
-            "usage: hybridmarl {battle,trace,bench,replay,train,eval,demos} ...\n\n"
+            "usage: hybridmarl {quickstart,battle,trace,bench,replay,train,eval,demos} ...\n\n"
+            "  quickstart    train the method on m5v5, compare with its demonstrator, curve + replay\n"
             "  battle        play a scripted battle series and print a win-rate table\n"
             "  trace         print a turn-by-turn trace of one battle\n"
             "  bench engine  engine throughput benchmark (JSON)\n"
             "  replay        record a battle or a Traffic Junction episode as a GIF\n"
-            "  train         train a learner (--algo hybrid|bc, --preset paper|quick|...)\n"
+            "  train         train a learner (--algo hybrid|bc|dqfd|ogtl, --preset paper|quick|...)\n"
             "  eval          evaluate a trained policy or a script (W, R with 95% CIs)\n"
             "  demos         record / inspect demonstration datasets (collect, info)\n\n"
             "Run 'hybridmarl COMMAND --help' for the options of a command."
@@ -324,6 +326,10 @@ def main(argv: list[str] | None = None) -> int:
         from hybridmarl.replay import ReplayConfig, run_replay
 
         return run_replay(tyro.cli(ReplayConfig, args=rest, prog="hybridmarl replay"))
+    if cmd == "quickstart":
+        from hybridmarl.quickstart import main as quickstart_main
+
+        return quickstart_main(rest)
     if cmd in ("train", "eval", "demos"):
         from hybridmarl.algos import cli as algos_cli
 

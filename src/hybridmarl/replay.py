@@ -71,6 +71,10 @@ class ReplayConfig:
     p_arrive: float = 0.2
     """Traffic Junction car arrival probability per entry and step (0.2: the paper's
     evaluation setting). Ignored for combat."""
+    run_dir: str | None = None
+    """Play our side with the trained actor of this run directory (``hybridmarl train``; its
+    newest checkpoint, legal argmax as in the paper's test protocol) instead of ``ours``. The
+    environment and combat scenario are the run's; ``enemy`` still picks the enemy script."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -285,6 +289,30 @@ def _validate(cfg: ReplayConfig) -> str:
     return env
 
 
+def _trained_policy(cfg: ReplayConfig) -> tuple[ReplayConfig, Callable[..., jax.Array]]:
+    """The run's env/scenario in ``cfg`` and its actor as an env policy (legal argmax).
+    Raises ValueError (one line) for a missing or broken run directory."""
+    import dataclasses
+
+    from hybridmarl.algos import networks as nets
+    from hybridmarl.algos.evaluate import load_policy
+    from hybridmarl.algos.tasks import make_task
+
+    bundle = load_policy(str(cfg.run_dir))  # CheckpointError is a ValueError
+    spec = bundle.spec
+    task = make_task(spec)
+    module, variables = bundle.module, bundle.variables
+
+    def act(state: Any) -> jax.Array:
+        return nets.actor_actions(module, variables, task.observe(state)[None], task.avail(state)[None])[0]
+
+    if spec.env == "combat":
+        cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None)
+        return cfg, lambda key, state: act(state)
+    cfg = dataclasses.replace(cfg, env="traffic_junction", p_arrive=spec.p_arrive, ours=None)
+    return cfg, lambda state, key: act(state)
+
+
 def run_replay(cfg: ReplayConfig) -> int:
     """Record the episode ``cfg`` describes and write the video (the last frame held for about
     a second); print a one-line JSON summary.
@@ -294,19 +322,23 @@ def run_replay(cfg: ReplayConfig) -> int:
     """
     from hybridmarl.envs.video import write_video
 
+    trained = None
     try:
+        if cfg.run_dir is not None:
+            trained = _trained_policy(cfg)
+            cfg = trained[0]
         env = _validate(cfg)
     except ValueError as e:
         print(f"hybridmarl replay: error: {e}", file=sys.stderr)
         return 2
     if env == "combat":
-        frames, summary = record_combat_episode(
-            cfg.scenario, cfg.ours or "attack-closest", cfg.enemy, cfg.seed, cfg.max_steps
-        )
+        ours: Any = trained[1] if trained else (cfg.ours or "attack-closest")
+        frames, summary = record_combat_episode(cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps)
     else:
-        frames, summary = record_tj_episode(
-            cfg.ours or "yield-before-junction", cfg.p_arrive, cfg.seed, cfg.max_steps
-        )
+        ours = trained[1] if trained else (cfg.ours or "yield-before-junction")
+        frames, summary = record_tj_episode(ours, cfg.p_arrive, cfg.seed, cfg.max_steps)
+    if trained:
+        summary["ours"] = f"policy:{cfg.run_dir}"
     try:
         path = write_video(_hold_last(frames, cfg.fps), cfg.out, fps=cfg.fps)
     except (OSError, RuntimeError) as e:

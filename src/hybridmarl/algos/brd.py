@@ -117,6 +117,7 @@ def best_response_dynamics(
     a_init: jax.Array,
     legal: jax.Array,
     iterations: int = 7,
+    min_gain: float = 0.0,
 ) -> BRDResult:
     """Alg. 1 for B games at once (see the module docstring). Jittable.
 
@@ -127,6 +128,10 @@ def best_response_dynamics(
         a_init: int32 [B, N] start joint actions (``A^D(s)``, or the actor's).
         legal: bool [B, N, A] legal actions.
         iterations: the cap on sweeps over the agents (paper: 7).
+        min_gain: an agent switches only if its best action beats its current one by more than
+            this (0: any strict improvement, the paper's argmax). A positive margin keeps the
+            start action where alternatives are near-ties, which makes Ã a less noisy target
+            for the decentralised actor. ``Q(s, Ã)`` still never decreases.
     """
     b, n, na = legal.shape
     a_init = a_init.astype(jnp.int32)
@@ -154,7 +159,7 @@ def best_response_dynamics(
         cur = act[bidx, g]
         q_cur = jnp.where(lg[bidx, cur], q[bidx, cur], -jnp.inf)
         q_best = ql[bidx, best]
-        improve = valid & (q_best > q_cur) & update
+        improve = valid & (q_best > q_cur + min_gain) & update
         act = act.at[bidx, g].set(jnp.where(improve, best, cur))
         qtab = qtab.at[bidx, g].set(jnp.where(valid[:, None], q, qtab[bidx, g]))
         qval = qval.at[bidx, g].set(qval[bidx, g] | valid)

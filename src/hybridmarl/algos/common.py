@@ -38,6 +38,8 @@ from hybridmarl.algos.tasks import (
 ALGOS: dict[str, str] = {
     "hybrid": "hybridmarl.algos.hybrid",
     "bc": "hybridmarl.algos.bc",
+    "dqfd": "hybridmarl.algos.dqfd",
+    "ogtl": "hybridmarl.algos.ogtl",
 }
 
 

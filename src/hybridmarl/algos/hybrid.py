@@ -24,6 +24,15 @@ its returns, and Alg. 1 starts from that same policy), and it needs no demonstra
 2 (so "w/o D" and the full method share one code path). ``--brd-start demonstrator`` starts every
 Alg. 1 call from the original A^D instead (Alg. 1's "Input: ... demonstration actions").
 
+Extensions, all off by default (the ``paper`` and ``quick`` presets are the paper's method):
+``lookahead_steps`` (K-step or exact simulation instead of Eq. 2's one step), ``brd_min_gain``
+(Alg. 1 switches only for a gain above a margin), ``actor_init = "clone"`` (the actor starts
+from θ^D), ``actor_target = "best"`` (cross-entropy toward Alg. 1's ã_g instead of Eq. 8),
+``actor_buffer`` (the actor learns from a buffer of Alg. 1's labelled decisions between chunks,
+DAgger-style). Why they exist: measured at m5v5 (README, "Results"), Alg. 1 with the one-step
+critic Q makes the demonstrator's joint actions worse, while Alg. 1 with exact Q is nearly
+perfect when executed centrally; the open problem is the decentralised actor learning it.
+
 The whole of Phase 3's per-step work (Alg. 1 for all games, Eq. 7, Eq. 8, the env step, resets)
 runs as one compiled ``lax.scan`` of ``chunk_steps`` steps; the host only assembles finished
 episodes, feeds B, refits the critic, logs and checkpoints between chunks.
@@ -61,8 +70,15 @@ from hybridmarl.algos.common import (
     key_of,
     resolve_run_dir,
 )
-from hybridmarl.algos.losses import actor_loss, advantages, critic_loss
-from hybridmarl.algos.rollout import EpisodeAssembler, Pool, ReplayBuffer, new_pool, pool_steps
+from hybridmarl.algos.losses import actor_loss, advantages, bc_loss, critic_loss
+from hybridmarl.algos.rollout import (
+    EpisodeAssembler,
+    LabelBuffer,
+    Pool,
+    ReplayBuffer,
+    new_pool,
+    pool_steps,
+)
 from hybridmarl.algos.tasks import Task, TaskError, flatten_named, make_task, unflatten_named
 
 ALGO = "hybrid"
@@ -95,6 +111,11 @@ class HybridConfig(TrainConfig):
     brd_start: Literal["actor", "demonstrator"] = "actor"
     """Where Alg. 1 starts: the current actor's actions (Section 4.3, the default; see the module
     docstring) or the original demonstrator A^D."""
+    brd_min_gain: float = 0.0
+    """Alg. 1 switches an agent's action only when its best response beats the current action
+    by more than this (in units of the normalised return; one Marine shot at m5v5 is 0.03).
+    0: the paper's plain argmax. A margin keeps near-ties at the start action, so Ã changes
+    the start policy only where it matters and is a cleaner target for the actor."""
     lookahead_steps: int = 1
     """Forward simulation per Q estimate in Alg. 1. 1: the paper's one-step simulation,
     Q = r + λ V(s') (Eq. 2, Section 4.2). K > 1 (an extension): the continuation policy (the
@@ -104,6 +125,29 @@ class HybridConfig(TrainConfig):
     clone_script: bool = False
     """Paper-exact A^D for a script demonstrator: record ``demo_observations`` from it and use
     its behavioural clone θ^D (Section 3) instead of the script itself."""
+    actor_init: Literal["random", "clone"] = "random"
+    """Initial actor parameters: ``random`` (the paper states none), or ``clone``: start the
+    actor from the behavioural clone θ^D of the demonstrator (same architecture, Section 5.1),
+    so that Alg. 2 starts at the demonstrator's level instead of a random policy's. For a script
+    demonstrator this records ``demo_observations`` from the script and clones them (Phase 1);
+    the script itself stays A^D unless ``clone_script``."""
+    actor_target: Literal["advantage", "best"] = "advantage"
+    """The actor update. ``advantage``: Eq. 8, ``sum_a grad log p(a|O) A(s, a)`` over the legal
+    actions (the paper). Its fixed point is ``p(a) ∝ A(s, a)``, so under the legal-argmax
+    execution of Section 5.1 close advantages make the executed action fragile. ``best``: the
+    cross-entropy toward ``ã_g(s) = argmax_a A(s, a)``, the action of Alg. 1's result Ã that
+    Eq. 7 defines (Section 4.2: "Ã ... can be used to guide the actor networks")."""
+    actor_steps: int = 1
+    """Actor gradient steps per environment step (1: one update per step as in Alg. 2). Without
+    ``actor_buffer``: steps on the same batch of Alg. 1 results; with it: minibatch steps on the
+    buffer after every chunk (``actor_steps * chunk_steps`` of them)."""
+    actor_buffer: int = 0
+    """0: the actor is updated on-line, on each step's Alg. 1 results, inside the compiled chunk
+    (Alg. 2). N > 0 (an extension): keep the last N agent decisions labelled by Alg. 1 (obs,
+    legal mask, ã_g, advantages) and train the actor on minibatches of them between chunks, so
+    every costly Alg. 1 result is reused (DAgger-style aggregation of the actor's own states)."""
+    actor_batch_size: int = 256
+    """Minibatch of the actor's buffer steps (``actor_buffer`` > 0; not given in the paper)."""
     demo_observations: int = 10_000
     """Demonstration observations recorded for cloning (Section 5.1: 10,000)."""
     bc_steps: int = 5_000
@@ -228,10 +272,13 @@ class Learner:
                 self._train_chunk, steps=cfg.chunk_steps, gamma=cfg.gamma,
                 iterations=cfg.brd_iterations, start=cfg.brd_start,
                 lookahead=cfg.lookahead_steps if cfg.lookahead_steps > 0 else 1_000_000,
+                actor_steps=cfg.actor_steps, target=cfg.actor_target, online=cfg.actor_buffer <= 0,
+                min_gain=cfg.brd_min_gain,
             )
         )
         self.fit_critic = jax.jit(functools.partial(self._fit_critic, batch=cfg.critic_batch_size))
         self.critic_values = jax.jit(self._critic_values)
+        self.fit_actor = jax.jit(functools.partial(self._fit_actor, batch=cfg.actor_batch_size, target=cfg.actor_target))
 
     # Phase 2's data: A^D plays from random start states.
     def _demo_chunk(self, pool: Pool, clone_vars: Any, *, steps: int):
@@ -272,8 +319,30 @@ class Learner:
         critic, total = jax.lax.fori_loop(0, num_steps, one, (critic, jnp.zeros((), jnp.float32)))
         return critic, total / jnp.maximum(num_steps, 1).astype(jnp.float32)
 
+    # The actor on minibatches of Alg. 1's labelled decisions (``actor_buffer`` > 0).
+    def _fit_actor(self, actor: nets.NetState, rows: dict, size: jax.Array, key: jax.Array, num_steps: jax.Array, *, batch: int, target: str):
+        mod, tx = self.actor_mod, self.actor_tx
+
+        def one(i, c):
+            actor, total = c
+            idx = jax.random.randint(jax.random.fold_in(key, i), (batch,), 0, jnp.maximum(size, 1))
+
+            def loss_fn(params):
+                logits, bs = nets.apply_train(mod, params, actor.batch_stats, rows["obs"][idx])
+                if target == "best":
+                    return bc_loss(logits, rows["target"][idx], rows["legal"][idx]), bs
+                return actor_loss(logits, rows["adv"][idx], rows["legal"][idx]), bs
+
+            (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(actor.params)
+            updates, opt = tx.update(grads, actor.opt_state, actor.params)
+            actor = actor.replace(params=optax.apply_updates(actor.params, updates), batch_stats=bs, opt_state=opt, step=actor.step + 1)
+            return actor, total + loss
+
+        actor, total = jax.lax.fori_loop(0, num_steps, one, (actor, jnp.zeros((), jnp.float32)))
+        return actor, total / jnp.maximum(num_steps, 1).astype(jnp.float32)
+
     # Phase 3, K steps of Alg. 2 for all B games.
-    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, lookahead: int):
+    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float):
         task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
 
         def step_fn(key, state, actions):
@@ -298,7 +367,7 @@ class Learner:
             a_actor = nets.actor_actions(mod, actor, obs, legal)
             # Alg. 1 from the actor's actions (Section 4.3) or from A^D.
             a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, states, obs, legal)
-            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations)
+            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations, min_gain)
             # Eq. 7: advantage of every legal action of every agent that has a choice.
             adv = advantages(res.q, legal)
             weight = res.q_valid & (jnp.sum(legal, -1) >= 2)
@@ -307,15 +376,26 @@ class Learner:
             bn_mask = jnp.where(any_w, flat_w, jnp.ones_like(flat_w))
 
             # Eq. 8: theta <- theta + eta * sum_a grad log p(a|O) A(s, a), shared actor.
-            def loss_fn(params):
-                logits, bs = nets.apply_train(mod, params, actor.batch_stats, obs.reshape(b * n, -1), mask=bn_mask)
-                loss = actor_loss(logits, adv.reshape(b * n, na), legal.reshape(b * n, na), flat_w)
+            def loss_fn(params, batch_stats):
+                logits, bs = nets.apply_train(mod, params, batch_stats, obs.reshape(b * n, -1), mask=bn_mask)
+                if target == "best":
+                    loss = bc_loss(logits, res.actions.reshape(b * n), legal.reshape(b * n, na), flat_w)
+                else:
+                    loss = actor_loss(logits, adv.reshape(b * n, na), legal.reshape(b * n, na), flat_w)
                 return loss, bs
 
-            (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(actor.params)
-            updates, opt = tx.update(grads, actor.opt_state, actor.params)
-            new = actor.replace(params=optax.apply_updates(actor.params, updates), batch_stats=bs, opt_state=opt, step=actor.step + 1)
-            actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
+            def sgd_step(_, c):
+                net, _ = c
+                (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(net.params, net.batch_stats)
+                updates, opt = tx.update(grads, net.opt_state, net.params)
+                net = net.replace(params=optax.apply_updates(net.params, updates), batch_stats=bs, opt_state=opt, step=net.step + 1)
+                return net, loss
+
+            if online:
+                new, loss = jax.lax.fori_loop(0, actor_steps, sgd_step, (actor, jnp.zeros((), jnp.float32)))
+                actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
+            else:  # labels leave the chunk for the actor buffer (fit_actor between chunks)
+                loss = jnp.asarray(jnp.nan, jnp.float32)
             # Perform the (updated) actor's legal argmax.
             actions = nets.actor_actions(mod, actor, obs, legal)
             wf = weight.astype(jnp.float32)
@@ -330,6 +410,8 @@ class Learner:
                 "agree": jnp.sum((a_actor == res.actions) * wf) / nw,
                 "deciders": jnp.sum(wf) / b,
             }
+            if not online:
+                aux["labels"] = {"obs": obs, "legal": legal, "target": res.actions, "adv": adv, "w": weight}
             return actions, actor, aux
 
         pool, actor, out = pool_steps(task, act, pool, actor, steps)
@@ -346,7 +428,7 @@ def _static_cfg(cfg: HybridConfig) -> HybridConfig:
     """The config with every field that does not affect compilation reset to its default."""
     keep = {
         "num_envs", "chunk_steps", "gamma", "brd_iterations", "brd_start", "lookahead_steps", "optimizer", "actor_lr",
-        "critic_lr", "momentum", "critic_batch_size", "actor_hidden", "critic_hidden",
+        "critic_lr", "momentum", "critic_batch_size", "actor_hidden", "critic_hidden", "actor_steps", "actor_target", "actor_buffer", "actor_batch_size", "brd_min_gain",
     }
     return HybridConfig(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name in keep})
 
@@ -365,6 +447,7 @@ class RunState:
     key: jax.Array  # raw uint32 key data
     buffer: ReplayBuffer
     assembler: EpisodeAssembler
+    labels: LabelBuffer
     phase: str = "pretrain"  # "pretrain" (Phases 1-2 to do) -> "joint" (Phase 3)
     episodes: int = 0
     env_steps: int = 0
@@ -390,6 +473,8 @@ class RunState:
         out["key"] = np.asarray(self.key)
         out.update(prefixed(self.buffer.to_arrays(), "buffer"))
         out.update(prefixed(self.assembler.to_arrays(), "asm"))
+        if self.labels.capacity > 0:
+            out.update(prefixed(self.labels.to_arrays(), "labels"))
         for k, v in self.history.items():
             out[f"history.{k}"] = np.asarray(v, np.float32)
         return out
@@ -415,6 +500,8 @@ class RunState:
         self.key = jnp.asarray(arrays["key"])
         self.buffer.load_arrays(subtree(arrays, "buffer"))
         self.assembler.load_arrays(subtree(arrays, "asm"))
+        if self.labels.capacity > 0:
+            self.labels.load_arrays(subtree(arrays, "labels"))
         self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
         for k in ("phase", "episodes", "env_steps", "iterations", "critic_updates", "next_critic_update", "critic_loss", "demo_stats"):
             setattr(self, k, meta[k])
@@ -455,12 +542,13 @@ def train(cfg: HybridConfig) -> int:
     k_actor, k_critic, k_clone, k_pool, k_run = jax.random.split(key, 5)
     actor = nets.init_net(learner.actor_mod, k_actor, task.obs_dim, learner.actor_tx)
     critic = nets.init_net(learner.critic_mod, k_critic, task.critic_dim, learner.critic_tx)
-    needs_clone = demo_script is None
+    needs_clone = demo_script is None or cfg.actor_init == "clone"
     clone = nets.init_net(learner.actor_mod, k_clone, task.obs_dim, learner.actor_tx) if needs_clone else None
     template_state = task.state_template()
     st = RunState(
         actor=actor, critic=critic, clone=clone, pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
         buffer=ReplayBuffer(cfg.buffer_size, template_state), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma),
+        labels=LabelBuffer(max(cfg.actor_buffer, 0), task.obs_dim, task.num_actions),
         next_critic_update=cfg.e_update,
     )
     config_doc = {
@@ -490,7 +578,10 @@ def train(cfg: HybridConfig) -> int:
             st.clone, losses = D.fit_bc(st.clone, learner.actor_mod, (cfg.optimizer, cfg.actor_lr), rows, st.next_key(), cfg.bc_steps, cfg.bc_batch_size)
             check_finite("behavioural-cloning loss", float(losses[-1]) if losses.size else 0.0, "the end of cloning")
             acc = D.bc_accuracy(st.clone, learner.actor_mod, rows)
-            print(f"A^D = behavioural clone of {dataset.size} observations: final loss {losses[-1]:.4f}, accuracy {acc:.3f}")
+            role = "A^D" if demo_script is None else "θ^D (the actor's start)"
+            print(f"{role} = behavioural clone of {dataset.size} observations: final loss {losses[-1]:.4f}, accuracy {acc:.3f}")
+            if cfg.actor_init == "clone":
+                st.actor = st.actor.replace(params=st.clone.params, batch_stats=st.clone.batch_stats, opt_state=learner.actor_tx.init(st.clone.params))
         # ---- Phase 2: critic pre-training (Section 4.1, Eq. 3) ----------------------------------
         if cfg.pretrain_critic and cfg.pretrain_samples > 0 and cfg.lookahead_steps != 0:
             demo_pool = new_pool(task, st.next_key(), cfg.num_envs)
@@ -530,8 +621,15 @@ def train(cfg: HybridConfig) -> int:
         while st.phase == "joint" and st.episodes < cfg.total_episodes:
             t0 = time.time()
             st.pool, st.actor, out = learner.train_chunk(st.pool, st.actor, _vars(st.critic), _vars(st.clone))
+            labels = out["aux"].pop("labels", None)
             states, returns, stats = st.assembler.add(out)
             st.buffer.add(states, returns)
+            if labels is not None:
+                lab = jax.device_get(labels)
+                w = np.asarray(lab.pop("w")).reshape(-1)
+                st.labels.add({k: np.asarray(v).reshape((w.shape[0],) + np.asarray(v).shape[3:])[w] for k, v in lab.items()})
+                st.actor, aloss = learner.fit_actor(st.actor, *st.labels.device_arrays(), st.next_key(), jnp.asarray(cfg.actor_steps * cfg.chunk_steps))
+                out["aux"]["actor_loss"] = aloss
             n_new = int(next(iter(stats.values())).shape[0]) if stats else 0
             first_ep = st.episodes
             st.episodes += n_new

@@ -60,13 +60,19 @@ def select_tree(mask: jax.Array, new: Any, old: Any) -> Any:
 
 #: ``act(carry, key, states [B], obs [B, N, D], legal [B, N, A]) -> (actions [B, N], carry, aux)``.
 ActFn = Callable[[Any, jax.Array, Any, jax.Array, jax.Array], tuple[jax.Array, Any, Any]]
+#: ``on_step(states [B], actions [B, N], next_states [B], reward [B], done [B], info) -> pytree [B, ...]``.
+OnStepFn = Callable[[Any, jax.Array, Any, jax.Array, jax.Array, dict], Any]
 
 
-def pool_steps(task: Task, act: ActFn, pool: Pool, carry: Any, num_steps: int) -> tuple[Pool, Any, dict]:
+def pool_steps(
+    task: Task, act: ActFn, pool: Pool, carry: Any, num_steps: int, on_step: OnStepFn | None = None
+) -> tuple[Pool, Any, dict]:
     """Advance every game of ``pool`` by ``num_steps`` steps (jittable; ``act`` decides).
 
     Returns ``(pool, carry, out)`` with ``out`` time-major ``[K, B]``: ``state`` (s_t), ``reward``,
-    ``done``, ``stats`` (episode metrics, valid where done) and ``aux`` (whatever ``act`` returned).
+    ``done``, ``stats`` (episode metrics, valid where done) and ``aux`` (whatever ``act`` returned);
+    with ``on_step`` also ``step``: what it returned for the step (it sees ``s_{t+1}`` before a
+    finished game is reset, e.g. for per-agent rewards and next states).
     """
     b = pool.obs.shape[0]
 
@@ -86,6 +92,8 @@ def pool_steps(task: Task, act: ActFn, pool: Pool, carry: Any, num_steps: int) -
 
         obs_n, s_n = jax.lax.cond(jnp.any(d), reset_done, lambda a: a, (obs2, s2))
         out = {"state": pool.states, "reward": r, "done": d, "stats": stats, "aux": aux}
+        if on_step is not None:
+            out["step"] = on_step(pool.states, actions, s2, r, d, info)
         return (Pool(states=s_n, obs=obs_n, key=jax.random.key_data(key)), carry), out
 
     (pool, carry), out = jax.lax.scan(body, (pool, carry), None, length=num_steps)
@@ -229,5 +237,50 @@ class ReplayBuffer:
                 raise ValueError(f"buffer array {k!r} has shape {a.shape}, expected {self.states[k].shape}")
             self.states[k] = np.array(a)
         self.returns = np.array(arrays["returns"], np.float32)
+        self.ptr = int(arrays["ptr"])
+        self.size = int(arrays["size"])
+
+
+class LabelBuffer:
+    """A FIFO ring of the actor's training rows: one agent's decision ``(obs, legal, Ã action,
+    advantages)`` from Alg. 1 (host numpy; ``HybridConfig.actor_buffer``)."""
+
+    FIELDS = ("obs", "legal", "target", "adv")
+
+    def __init__(self, capacity: int, obs_dim: int, num_actions: int) -> None:
+        self.capacity = int(capacity)
+        self.arrays = {
+            "obs": np.zeros((self.capacity, obs_dim), np.float32),
+            "legal": np.zeros((self.capacity, num_actions), np.bool_),
+            "target": np.zeros((self.capacity,), np.int32),
+            "adv": np.zeros((self.capacity, num_actions), np.float32),
+        }
+        self.ptr = 0
+        self.size = 0
+
+    def add(self, rows: dict[str, np.ndarray]) -> None:
+        m = int(rows["target"].shape[0])
+        if m == 0 or self.capacity == 0:
+            return
+        if m > self.capacity:
+            rows = {k: v[-self.capacity :] for k, v in rows.items()}
+            m = self.capacity
+        idx = (self.ptr + np.arange(m)) % self.capacity
+        for k, v in self.arrays.items():
+            v[idx] = rows[k]
+        self.ptr = int((self.ptr + m) % self.capacity)
+        self.size = int(min(self.size + m, self.capacity))
+
+    def device_arrays(self) -> tuple[dict[str, jax.Array], jax.Array]:
+        return {k: jnp.asarray(v) for k, v in self.arrays.items()}, jnp.asarray(self.size, jnp.int32)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {**self.arrays, "ptr": np.asarray(self.ptr, np.int64), "size": np.asarray(self.size, np.int64)}
+
+    def load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
+        for k in self.FIELDS:
+            if arrays[k].shape != self.arrays[k].shape:
+                raise ValueError(f"actor buffer array {k!r} has shape {arrays[k].shape}, expected {self.arrays[k].shape}")
+            self.arrays[k] = np.array(arrays[k])
         self.ptr = int(arrays["ptr"])
         self.size = int(arrays["size"])

@@ -1,0 +1,732 @@
+"""DQfD, Deep Q-learning from Demonstrations (Hester et al., AAAI 2018; the paper's baseline of
+Section 5.2, reference §2), as independent learners sharing one Q network.
+
+    Phase 1  demonstrations: a dataset file, or ``demo_observations`` recorded from the script;
+             every record is re-simulated once to get its next state and the per-agent rewards
+             (``algos.rewards``, Section 5.2: "DQfD and OGTL need rewards of single-agent
+             action, which is same to [Hu et al., 2018]"). They fill a protected region of the
+             replay buffer that is never overwritten;
+    Phase 2  pre-training on the demonstrations only (``pretrain_updates`` minibatch updates of
+             the full loss J(Q) below);
+    Phase 3  interaction: ``num_envs`` games, every agent plays ε-greedy on the shared Q
+             network (legal actions only); finished episodes go into the agent region of the
+             buffer (FIFO); one update every ``train_every`` env steps on minibatches drawn by
+             proportional prioritised replay from demonstrations and agent data together; the
+             target network is copied every ``target_update_every`` updates;
+    Phase 4  evaluation (``algos.evaluate``: legal argmax of Q, W and R with 95% CIs).
+
+The Q network has the actor's architecture (Section 5.1, "re-implemented by the same setting and
+network architecture") with |A| outputs, read as Q-values; it is saved as ``actor.*`` so
+``hybridmarl eval`` plays its legal argmax, which is the greedy policy.
+
+Loss (reference §2), per sampled agent-transition ``(s, i, a, r_i, s')``, ``o = O^i(s)``::
+
+    J(Q) = J_DQ + λ1 J_n + λ2 J_E + λ3 J_L2
+    J_DQ = huber(r_i + γ' Q_tgt(o', argmax_{a' legal} Q(o', a')) - Q(o, a))      (double DQN)
+    J_n  = huber(Σ_{k<n} γ^k r_{i,t+k} + γ^n Q_tgt(o_{t+n}, argmax Q(o_{t+n})) - Q(o, a)), n = 10
+    J_E  = max_{a' legal} [Q(o, a') + 0.8·1(a' != a_E)] - Q(o, a_E)   (demonstrations only)
+    J_L2 = Σ w^2 over all parameters,  λ1 = λ2 = 1, λ3 = 1e-5
+
+weighted by the importance-sampling weights of prioritised replay. An agent's own episode ends
+when its unit dies (or the car leaves) or the game ends: no bootstrap past that. The TD error is
+Huber-clipped as in DQN (the reference names no form). Rewards are not log-scaled (the Atari
+``sign(r) log(1 + |r|)`` of the reference): the per-agent rewards are already normalised.
+
+Prioritised replay (proportional, Schaul et al. 2016 with DQfD's settings): priority
+``p = (|δ_1| + ε)^α``, ``δ_1`` the 1-step TD error (the reference leaves open which error sets it;
+priorities are also updated during pre-training), ``ε_a = 0.001`` for agent data, ``ε_d = 1.0``
+for demonstrations, ``α = 0.4``, IS exponent ``β`` annealed linearly from 0.6 to 1 over the
+interaction phase (weights normalised by the largest possible weight). New transitions get the
+largest priority seen so far. The buffer is host numpy: each block of ``updates_per_call``
+minibatches is drawn with one cumulative sum over all (row, agent) priorities (O(size) per block,
+fine at these sizes), trained in one compiled ``lax.scan``, and the priorities of the block are
+then updated (so within a block they are up to ``updates_per_call - 1`` updates stale). Rows hold
+the joint state and the next state (small integer pytrees); observations and legal masks are
+recomputed from them on the device.
+
+OGTL (``algos.ogtl``) reuses all of this with different switches (no demonstrations after its
+imitation stage, no margin loss during RL).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import time
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from hybridmarl.algos import networks as nets
+from hybridmarl.algos.checkpoint import (
+    latest_checkpoint,
+    load_checkpoint,
+    prefixed,
+    save_checkpoint,
+    subtree,
+)
+from hybridmarl.algos.common import (
+    TrainConfig,
+    TrainingDiverged,
+    check_finite,
+    config_to_dict,
+    key_data,
+    key_of,
+    resolve_run_dir,
+)
+from hybridmarl.algos.losses import (
+    double_q_bootstrap,
+    huber,
+    l2_penalty,
+    large_margin_loss,
+    nstep_returns,
+)
+from hybridmarl.algos.rewards import agent_rewards
+from hybridmarl.algos.rollout import EpisodeAssembler, Pool, new_pool, pool_steps
+from hybridmarl.algos.tasks import Task, TaskError, flatten_named, make_task, unflatten_named
+
+ALGO = "dqfd"
+
+
+@dataclass(frozen=True)
+class DQfDConfig(TrainConfig):
+    """DQfD: pre-training on demonstrations, then prioritised replay of demonstrations and own
+    data with TD, n-step TD, large-margin and L2 losses (reference §2)."""
+
+    total_episodes: int = 20_000
+    """Interaction episodes (the paper does not state its budget; as ``hybrid``)."""
+    num_envs: int = 16
+    """Games played in parallel during interaction (not in the paper)."""
+    chunk_steps: int = 8
+    """Env steps per compiled call; buffer, updates and logs happen in between."""
+    gamma: float = 0.995
+    """Discount (Section 5.1: λ = 0.995; the baselines use "the same setting", Section 5.2)."""
+    demo_observations: int = 10_000
+    """Demonstration observations recorded from a script demonstrator (Section 5.1: 10,000)."""
+    pretrain_updates: int = 50_000
+    """Minibatch updates on demonstrations only before interacting (reference §2: 750,000 on
+    Atari, "10-50k is reasonable" for these tasks)."""
+    pretrain_td: bool = True
+    """Pre-train with the TD terms too (DQfD: the full loss, reference §2). False: the
+    large-margin loss only (pure imitation)."""
+    keep_demos: bool = True
+    """Keep the demonstrations in the buffer during interaction (DQfD: yes, reference §2)."""
+    lambda_nstep: float = 1.0
+    """λ1, weight of the n-step TD loss (reference §2: 1.0)."""
+    lambda_margin: float = 1.0
+    """λ2, weight of the large-margin loss on demonstration samples (reference §2: 1.0)."""
+    lambda_margin_online: float | None = None
+    """λ2 during interaction (default: ``lambda_margin``; OGTL: 0)."""
+    lambda_l2: float = 1e-5
+    """λ3, weight of the L2 penalty on the weights (reference §2: 1e-5)."""
+    margin: float = 0.8
+    """Margin l(a_E, a) for a != a_E (reference §2: 0.8)."""
+    n_step: int = 10
+    """n of the n-step return (reference §2: 10)."""
+    batch_size: int = 32
+    """Agent-transitions per minibatch (reference §2: 32)."""
+    train_every: int = 4
+    """One update every this many env steps (joint steps summed over the parallel games;
+    reference §2: every 4 steps on Atari)."""
+    updates_per_call: int = 8
+    """Minibatches per compiled update call (priorities are refreshed after each call)."""
+    target_update_every: int = 10_000
+    """Copy the online network to the target network every this many updates (reference §2:
+    C = 10,000)."""
+    buffer_size: int = 50_000
+    """Joint steps (rows) of agent data kept, FIFO, besides the demonstrations (reference §2: 10^6
+    transitions; a row holds one transition per agent)."""
+    per_alpha: float = 0.4
+    """Prioritised replay exponent α (reference §2: 0.4; 0 = uniform replay)."""
+    per_beta0: float = 0.6
+    """Importance-sampling exponent β at the start of interaction, annealed to 1 (reference §2)."""
+    per_eps_agent: float = 0.001
+    """ε_a, priority bonus of agent transitions (reference §2: 0.001)."""
+    per_eps_demo: float = 1.0
+    """ε_d, priority bonus of demonstration transitions (reference §2: 1.0)."""
+    eps_start: float = 0.01
+    """ε-greedy exploration at the start of interaction (reference §2: 0.01)."""
+    eps_end: float = 0.01
+    """ε-greedy exploration after ``eps_decay_episodes`` (reference §2: 0.01)."""
+    eps_decay_episodes: int = 0
+    """Episodes of linear decay from ``eps_start`` to ``eps_end`` (0: none)."""
+    optimizer: Literal["sgd", "adam"] = "sgd"
+    """Optimiser (Section 5.1: SGD for all networks; "the same setting", Section 5.2)."""
+    lr: float = 1e-3
+    """Learning rate (Section 5.1: 10^-3)."""
+    momentum: float = 0.0
+    """SGD momentum (0: plain SGD)."""
+    actor_hidden: tuple[int, ...] = nets.ACTOR_HIDDEN
+    """Q network FC widths before the |A| outputs (the actor's, Section 5.1: 512, 256, 256)."""
+
+
+def _paper(env: str) -> DQfDConfig:
+    return DQfDConfig(env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest")
+
+
+def _quick(env: str) -> DQfDConfig:
+    """Minutes on a CPU: fewer pre-training updates and episodes, Adam, a faster target."""
+    return dataclasses.replace(
+        _paper(env), total_episodes=600, pretrain_updates=3_000, optimizer="adam", lr=3e-4, batch_size=64,
+        updates_per_call=16, target_update_every=500, buffer_size=20_000, checkpoint_every=200,
+    )
+
+
+def _toy(env: str) -> DQfDConfig:
+    """Seconds: a smoke test of the whole pipeline (tests, CI). Tiny network, no learning."""
+    return dataclasses.replace(
+        _quick(env), total_episodes=4, num_envs=4, chunk_steps=8, demo_observations=64, pretrain_updates=8,
+        batch_size=16, updates_per_call=4, target_update_every=8, buffer_size=256, actor_hidden=(16, 16, 16),
+        checkpoint_every=2, eval_episodes=8, tensorboard=False,
+    )
+
+
+PRESETS = {"paper": _paper, "quick": _quick, "toy": _toy}
+
+
+# -- prioritised replay ---------------------------------------------------------------------------------
+
+
+class PrioritizedReplay:
+    """Rows of joint steps with per-agent transitions; demonstrations in a protected region.
+
+    Row ``r`` holds ``s_t`` and ``s_{t+1}`` (flattened state arrays), the agents' actions and,
+    per agent, the reward, the 1-step discount ``γ·(1 - end)``, the n-step return and discount and
+    ``nidx`` (the row whose next state bootstraps the n-step target), ``valid`` (the agent is in
+    play at ``s_t``) and the priority ``p^α``. Rows ``[0, demo_size)`` are the demonstrations
+    (never overwritten); agent rows live in ``[demo_cap, demo_cap + capacity)``, FIFO. A row's
+    ``nidx`` points at a row inserted with it (same episode, later), so FIFO overwriting never
+    leaves a live row pointing at a replaced one.
+    """
+
+    PER_AGENT = ("actions", "reward", "disc1", "nret", "ndisc", "nidx", "valid", "prio")
+
+    def __init__(self, capacity: int, demo_cap: int, num_agents: int, state_template: Any, *, alpha: float, eps_agent: float, eps_demo: float) -> None:
+        self.capacity, self.demo_cap, self.n = int(capacity), int(demo_cap), int(num_agents)
+        self.template = state_template
+        self.alpha, self.eps_agent, self.eps_demo = float(alpha), float(eps_agent), float(eps_demo)
+        total = self.capacity + self.demo_cap
+        proto = flatten_named(state_template)
+        self.states = {k: np.zeros((total,) + v.shape, v.dtype) for k, v in proto.items()}
+        self.nexts = {k: np.zeros((total,) + v.shape, v.dtype) for k, v in proto.items()}
+        dtypes = {"actions": np.int32, "nidx": np.int64, "valid": np.bool_, "prio": np.float64}
+        self.cols = {k: np.zeros((total, self.n), dtypes.get(k, np.float32)) for k in self.PER_AGENT}
+        self.demo_size = 0
+        self.ptr = 0
+        self.size = 0
+        self.max_prio = 1.0
+
+    def add(self, rows: dict[str, np.ndarray], done: np.ndarray, segment: np.ndarray, gamma: float, n_step: int, *, demo: bool = False) -> None:
+        """Insert rows (consecutive within ``segment``; ``state.*``, ``next.*``, ``actions``,
+        ``agent_reward``, ``active``, ``active_next``) and their targets' ingredients."""
+        m = int(done.shape[0])
+        if m == 0:
+            return
+        ends = np.asarray(done, bool)[:, None] | ~np.asarray(rows["active_next"], bool)
+        reward = np.asarray(rows["agent_reward"], np.float32)
+        nret, ndisc, last = nstep_returns(reward, ends, np.asarray(segment), gamma, n_step)
+        cols = {
+            "actions": rows["actions"], "reward": reward, "disc1": np.where(ends, 0.0, gamma).astype(np.float32),
+            "nret": nret, "ndisc": ndisc, "valid": np.asarray(rows["active"], bool),
+        }
+        if demo:
+            if m > self.demo_cap:
+                raise ValueError(f"{m} demonstration rows do not fit the protected region of {self.demo_cap}")
+            pos = np.arange(m)
+            self.demo_size = m
+        else:
+            if m > self.capacity:  # keep the newest; n-step links only point forward
+                drop = m - self.capacity
+                cols = {k: v[drop:] for k, v in cols.items()}
+                rows = {k: v[drop:] for k, v in rows.items()}
+                last = last[drop:] - drop
+                m = self.capacity
+            pos = self.demo_cap + (self.ptr + np.arange(m)) % self.capacity
+            self.ptr = int((self.ptr + m) % self.capacity)
+            self.size = int(min(self.size + m, self.capacity))
+        for k, v in cols.items():
+            self.cols[k][pos] = v
+        self.cols["nidx"][pos] = pos[last]
+        self.cols["prio"][pos] = np.where(cols["valid"], self.max_prio, 0.0)
+        for k in self.states:
+            self.states[k][pos] = rows["state." + k]
+            self.nexts[k][pos] = rows["next." + k]
+
+    def drop_demos(self) -> None:
+        """Stop sampling the demonstrations (OGTL's RL stage)."""
+        self.cols["valid"][: self.demo_cap] = False
+        self.cols["prio"][: self.demo_cap] = 0.0
+
+    def live_mask(self) -> np.ndarray:
+        rows = np.zeros(self.capacity + self.demo_cap, bool)
+        rows[: self.demo_size] = True
+        rows[self.demo_cap : self.demo_cap + self.size] = True
+        return rows[:, None] & self.cols["valid"]
+
+    def sample(self, rng: np.random.Generator, count: int, beta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``count`` agent-transitions with probability ``p_i / sum p`` (``p`` already ``^α``):
+        (rows, agents, importance weights ``(M P(i))^-β / max``)."""
+        p = np.where(self.live_mask(), self.cols["prio"], 0.0).ravel()
+        cdf = np.cumsum(p)
+        total = float(cdf[-1]) if cdf.size else 0.0
+        if total <= 0.0:
+            raise ValueError("the replay buffer holds no transition to sample")
+        flat = np.searchsorted(cdf, rng.random(count) * total, side="right")
+        flat = np.minimum(flat, p.size - 1)
+        live = p > 0
+        m = int(live.sum())
+        prob = p[flat] / total
+        w = (m * prob) ** (-beta)
+        w_max = (m * p[live].min() / total) ** (-beta)
+        return flat // self.n, flat % self.n, (w / w_max).astype(np.float32)
+
+    def update_priorities(self, rows: np.ndarray, agents: np.ndarray, td_abs: np.ndarray) -> None:
+        eps = np.where(rows < self.demo_cap, self.eps_demo, self.eps_agent)
+        p = (np.abs(np.asarray(td_abs, np.float64)) + eps) ** self.alpha
+        self.cols["prio"][rows, agents] = p
+        self.max_prio = max(self.max_prio, float(p.max()) if p.size else 0.0)
+
+    def batch(self, rows: np.ndarray, agents: np.ndarray, weights: np.ndarray) -> dict[str, Any]:
+        """Host arrays of a sample (leading shape of ``rows``) for the compiled update."""
+        bidx: np.ndarray = np.asarray(self.cols["nidx"][rows, agents], np.int64)
+        shape = rows.shape
+        nb = len(shape)
+        out: dict[str, Any] = {
+            "states": unflatten_named(self.template, {k: v[rows] for k, v in self.states.items()}, batch_dims=nb),
+            "next": unflatten_named(self.template, {k: v[rows] for k, v in self.nexts.items()}, batch_dims=nb),
+            "boot": unflatten_named(self.template, {k: v[bidx] for k, v in self.nexts.items()}, batch_dims=nb),
+            "agent": agents.astype(np.int32).reshape(shape),
+            "demo": (rows < self.demo_cap).astype(np.float32),
+            "weight": weights.reshape(shape),
+        }
+        for k in ("actions", "reward", "disc1", "nret", "ndisc"):
+            out[k] = self.cols[k][rows, agents]
+        return out
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        out = {"state." + k: v for k, v in self.states.items()}
+        out.update({"next." + k: v for k, v in self.nexts.items()})
+        out.update(self.cols)
+        out["counters"] = np.asarray([self.capacity, self.demo_cap, self.demo_size, self.ptr, self.size], np.int64)
+        out["max_prio"] = np.asarray(self.max_prio, np.float64)
+        return out
+
+    def load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
+        self.capacity, self.demo_cap, self.demo_size, self.ptr, self.size = (int(x) for x in arrays["counters"])
+        self.states = {k: np.array(arrays["state." + k]) for k in self.states}
+        self.nexts = {k: np.array(arrays["next." + k]) for k in self.nexts}
+        self.cols = {k: np.array(arrays[k]) for k in self.PER_AGENT}
+        self.max_prio = float(arrays["max_prio"])
+
+
+# -- the compiled pieces -----------------------------------------------------------------------------------
+
+
+class QLearner:
+    """The Q network, its optimiser and the jitted functions of one (task, static settings)."""
+
+    def __init__(self, task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None) -> None:
+        self.task = task
+        self.demo_policy = task.demonstrator(demo_script) if demo_script else None
+        self.module = nets.actor_module(task.num_actions, hidden)
+        self.tx = nets.make_optimizer(optimizer, lr, momentum)
+        self.b = num_envs
+        self.collect_chunk = jax.jit(functools.partial(self._collect_chunk, steps=chunk_steps))
+        self.update_block = jax.jit(self._update_block)
+        self.resimulate = jax.jit(jax.vmap(self._transition))
+
+    def _transition(self, state: Any, actions: jax.Array, next_state: Any, done: jax.Array, info: dict) -> dict:
+        """What a buffer row needs from one step ``state -> next_state``."""
+        task = self.task
+        return {
+            "next": next_state,
+            "actions": actions.astype(jnp.int32),
+            "agent_reward": agent_rewards(task.kind, task.num_agents, state, next_state, done, info),
+            "active": task.env.agent_active(state),
+            "active_next": task.env.agent_active(next_state),
+            "done": done,
+        }
+
+    def _on_step(self, states, actions, next_states, reward, done, info):
+        del reward
+        return jax.vmap(self._transition)(states, actions, next_states, done, info)
+
+    def _collect_chunk(self, pool: Pool, q_vars: Any, eps: jax.Array, use_script: jax.Array, *, steps: int):
+        """``steps`` steps of ε-greedy play of the shared Q network (legal actions only), or of
+        the demonstrator script where ``use_script`` (one compiled function for both, so
+        recording demonstrations costs no extra compilation)."""
+        mod, demo = self.module, self.demo_policy
+
+        def act(carry, key, states, obs, legal):
+            greedy = nets.actor_actions(mod, carry, obs, legal)
+            k_flip, k_rnd, k_demo = jax.random.split(key, 3)
+            rnd = jax.random.categorical(k_rnd, jnp.where(legal, 0.0, -jnp.inf), axis=-1).astype(jnp.int32)
+            flip = jax.random.uniform(k_flip, greedy.shape) < eps
+            a = jnp.where(flip, rnd, greedy)
+            if demo is not None:
+                scripted = jax.vmap(demo)(jax.random.split(k_demo, self.b), states).astype(jnp.int32)
+                a = jnp.where(use_script, scripted, a)
+            return a, carry, {}
+
+        pool, _, out = pool_steps(self.task, act, pool, q_vars, steps, on_step=self._on_step)
+        return pool, out
+
+    def _agent_inputs(self, states: Any, agent: jax.Array) -> tuple[jax.Array, jax.Array]:
+        obs = jax.vmap(self.task.observe)(states)
+        legal = jax.vmap(self.task.avail)(states)
+        i = jnp.arange(agent.shape[0])
+        return obs[i, agent], legal[i, agent]
+
+    def _update_block(self, q: nets.NetState, target_vars: Any, batch: dict, coeffs: jax.Array):
+        """``K`` minibatch updates (batch leaves ``[K, B, ...]``); ``coeffs`` = (λ_DQ, λ1, λ2, λ3,
+        margin). Returns the network, |δ_1| ``[K, B]`` and the mean loss terms."""
+        mod, tx = self.module, self.tx
+
+        def one(q: nets.NetState, mb: dict):
+            # s, s' and the n-step bootstrap state in one vmapped observation (one copy compiled).
+            both = jax.tree.map(lambda *x: jnp.concatenate(x), mb["states"], mb["next"], mb["boot"])
+            obs_all, legal_all = self._agent_inputs(both, jnp.tile(mb["agent"], 3))
+            b = mb["agent"].shape[0]
+            obs, legal = obs_all[:b], legal_all[:b]
+            x2, l2 = obs_all[b:], legal_all[b:]
+            q_on = nets.apply_eval(mod, {"params": q.params, "batch_stats": q.batch_stats}, x2)
+            q_tg = nets.apply_eval(mod, target_vars, x2)
+            v = double_q_bootstrap(q_on, q_tg, l2)
+            y1 = jax.lax.stop_gradient(mb["reward"] + mb["disc1"] * v[:b])
+            yn = jax.lax.stop_gradient(mb["nret"] + mb["ndisc"] * v[b:])
+
+            def loss_fn(params):
+                qv, bs = nets.apply_train(mod, params, q.batch_stats, obs)
+                q_sa = jnp.take_along_axis(qv, mb["actions"][:, None], axis=-1)[:, 0]
+                td1, tdn = y1 - q_sa, yn - q_sa
+                j_e = large_margin_loss(qv, mb["actions"], legal, coeffs[4]) * mb["demo"]
+                terms = jnp.stack([jnp.mean(mb["weight"] * huber(td1)), jnp.mean(mb["weight"] * huber(tdn)), jnp.mean(mb["weight"] * j_e), l2_penalty(params)])
+                return jnp.dot(coeffs[:4], terms), (bs, td1, terms)
+
+            (loss, (bs, td1, terms)), grads = jax.value_and_grad(loss_fn, has_aux=True)(q.params)
+            updates, opt = tx.update(grads, q.opt_state, q.params)
+            q = q.replace(params=optax.apply_updates(q.params, updates), batch_stats=bs, opt_state=opt, step=q.step + 1)
+            return q, (jnp.abs(td1), jnp.concatenate([loss[None], terms]))
+
+        q, (td, terms) = jax.lax.scan(one, q, batch)
+        return q, td, jnp.mean(terms, axis=0)
+
+
+@functools.lru_cache(maxsize=8)
+def build_learner(task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None) -> QLearner:
+    return QLearner(task, hidden, optimizer, lr, momentum, num_envs, chunk_steps, demo_script)
+
+
+LOSS_NAMES = ("loss", "td_loss", "nstep_loss", "margin_loss", "l2")
+
+
+# -- demonstrations -> buffer rows ---------------------------------------------------------------------------
+
+
+def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, float]:
+    """Re-simulate every record of a dataset once (``step(s_t, a_t)``) for its next state,
+    per-agent rewards and ``done``; returns (rows, done, segment, fraction of records whose
+    recorded global reward the re-simulation reproduces)."""
+    from hybridmarl.algos.demos import state_at
+
+    task = learner.task
+    k = ds.size
+    parts: list[dict[str, np.ndarray]] = []
+    step = _step_batch(task)
+    for lo in range(0, k, chunk):
+        idx = np.arange(lo, min(lo + chunk, k))
+        pad = np.concatenate([idx, np.full(chunk - idx.size, idx[-1])])
+        states = state_at(ds, pad, task)
+        acts = jnp.asarray(ds.arrays["actions"][pad])
+        s2, r, d, info = step(states, acts)
+        out = learner.resimulate(states, acts, s2, d, info)
+        out = jax.device_get(out)
+        row = {"state." + n: v for n, v in flatten_named(jax.device_get(states)).items()}
+        row.update({"next." + n: v for n, v in flatten_named(out.pop("next")).items()})
+        row.update({n: np.asarray(v) for n, v in out.items()})
+        row["reward_env"] = np.asarray(r)
+        parts.append({n: v[: idx.size] for n, v in row.items()})
+    rows = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
+    agree = float(np.mean(np.isclose(rows.pop("reward_env"), ds.arrays["reward"], atol=1e-6)))
+    done = rows.pop("done").astype(bool)
+    return rows, done, np.asarray(ds.arrays["episode"]), agree
+
+
+@functools.lru_cache(maxsize=8)
+def _step_batch(task: Task):
+    def step(states, actions):
+        b = actions.shape[0]
+        _, s2, r, d, info = jax.vmap(task.step)(jax.random.split(jax.random.key(0), b), states, actions)
+        return s2, r, d, info
+
+    return jax.jit(step)
+
+
+def online_rows(out: dict, asm: EpisodeAssembler) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """Finished episodes of a ``collect_chunk`` block: (rows, done, segment, episode metrics)."""
+    step = jax.device_get(out["step"])
+    fields = {"state." + k: v for k, v in flatten_named(jax.device_get(out["state"])).items()}
+    fields.update({"next." + k: v for k, v in flatten_named(step.pop("next")).items()})
+    fields.update({k: np.asarray(v) for k, v in step.items()})
+    rows, _, stats = asm.add_fields(fields, out["reward"], out["done"], out["stats"])
+    seg = rows.pop("episode_key")
+    rows.pop("t")
+    return rows, rows.pop("done").astype(bool), seg, stats
+
+
+def record_demos(learner: QLearner, pool: Pool, q_vars: Any, count: int, gamma: float) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, float]]:
+    """Play the demonstrator script from random start states until ``count`` records of finished
+    episodes are in (the last episode is cut at ``count``, like ``demos.collect``)."""
+    asm = EpisodeAssembler(learner.b, gamma)
+    parts: list[tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]] = []
+    stats_all: dict[str, list[float]] = {}
+    got = 0
+    while got < count:
+        pool, out = learner.collect_chunk(pool, q_vars, jnp.zeros((), jnp.float32), jnp.ones((), bool))
+        rows, done, seg, stats = online_rows(out, asm)
+        parts.append((rows, done, seg))
+        got += int(done.size)
+        for k, v in stats.items():
+            stats_all.setdefault(k, []).extend(v.tolist())
+    rows = {k: np.concatenate([p[0][k] for p in parts])[:count] for k in parts[0][0]}
+    done = np.concatenate([p[1] for p in parts])[:count]
+    seg = np.concatenate([p[2] for p in parts])[:count]
+    return rows, done, seg, {k: float(np.mean(v)) for k, v in stats_all.items() if v}
+
+
+# -- the run ----------------------------------------------------------------------------------------------
+
+
+@dataclass
+class RunState:
+    """Everything a checkpoint holds."""
+
+    q: nets.NetState
+    target: Any
+    pool: Pool
+    key: jax.Array
+    buffer: PrioritizedReplay
+    assembler: EpisodeAssembler
+    phase: str = "pretrain"  # "pretrain" -> "online"
+    episodes: int = 0
+    env_steps: int = 0
+    updates: int = 0
+    pretrain_done: int = 0
+    update_credit: float = 0.0
+    next_target: int = 0
+    demo_stats: dict[str, float] = dataclasses.field(default_factory=dict)
+    history: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+
+    COUNTERS = ("phase", "episodes", "env_steps", "updates", "pretrain_done", "update_credit", "next_target", "demo_stats")
+
+    def next_key(self) -> jax.Array:
+        k, sub = jax.random.split(key_of(self.key))
+        self.key = key_data(k)
+        return sub
+
+    def rng(self) -> np.random.Generator:
+        return np.random.default_rng(np.asarray(jax.random.key_data(self.next_key())).astype(np.uint64))
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        out.update(prefixed(flatten_named(self.q), "actor"))
+        out.update(prefixed(flatten_named(self.target), "target"))
+        out.update(prefixed(flatten_named(self.pool), "pool"))
+        out["key"] = np.asarray(self.key)
+        out.update(prefixed(self.buffer.to_arrays(), "buffer"))
+        out.update(prefixed(self.assembler.to_arrays(), "asm"))
+        for k, v in self.history.items():
+            out[f"history.{k}"] = np.asarray(v, np.float32)
+        return out
+
+    def meta(self) -> dict[str, Any]:
+        return {k: getattr(self, k) for k in self.COUNTERS}
+
+    def restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
+        self.q = unflatten_named(self.q, subtree(arrays, "actor"))
+        self.target = unflatten_named(self.target, subtree(arrays, "target"))
+        self.pool = unflatten_named(self.pool, subtree(arrays, "pool"))
+        self.key = jnp.asarray(arrays["key"])
+        self.buffer.load_arrays(subtree(arrays, "buffer"))
+        self.assembler.load_arrays(subtree(arrays, "asm"))
+        self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
+        for k in self.COUNTERS:
+            setattr(self, k, meta[k])
+
+
+def _variables(q: nets.NetState) -> dict:
+    return {"params": q.params, "batch_stats": q.batch_stats}
+
+
+def train(cfg: DQfDConfig, algo: str = ALGO) -> int:
+    """The whole run (``algo`` names it: ``dqfd``, or ``ogtl`` with OGTL's switches)."""
+    from hybridmarl.algos import demos as D
+    from hybridmarl.algos import evaluate as E
+    from hybridmarl.algos import plots
+    from hybridmarl.algos.hybrid import _result_line
+    from hybridmarl.algos.logger import Progress, RunLogger
+
+    t_start = time.time()
+    spec = cfg.task_spec()
+    task = make_task(spec)
+    run_dir = resolve_run_dir(algo, cfg)
+    ckpt = latest_checkpoint(run_dir)
+    if ckpt is not None and not cfg.resume:
+        raise TaskError(f"{run_dir} already holds checkpoints: pass --resume to continue it, or choose another --run-dir")
+    log = RunLogger(run_dir, tensorboard=cfg.tensorboard)
+    dataset = cfg.demonstrator_is_dataset()
+    learner = build_learner(task, tuple(cfg.actor_hidden), cfg.optimizer, cfg.lr, cfg.momentum, cfg.num_envs, cfg.chunk_steps, None if dataset else cfg.demonstrator_name())
+    k_net, k_pool, k_run = jax.random.split(jax.random.key(cfg.seed), 3)
+    q = nets.init_net(learner.module, k_net, task.obs_dim, learner.tx)
+    template = task.state_template()
+    config_doc = {
+        "algo": algo,
+        "config": {**config_to_dict(cfg), "demonstrator_name": cfg.demonstrator_name(), "eval_enemy_name": cfg.eval_enemy_name()},
+        "task": spec.to_dict(),
+        "networks": {"q_params": nets.num_params(q.params)},
+    }
+
+    def new_buffer(demo_cap: int) -> PrioritizedReplay:
+        return PrioritizedReplay(cfg.buffer_size, demo_cap, task.num_agents, template, alpha=cfg.per_alpha, eps_agent=cfg.per_eps_agent, eps_demo=cfg.per_eps_demo)
+
+    st = RunState(
+        q=q, target=_variables(q), pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
+        buffer=new_buffer(0), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma), next_target=cfg.target_update_every,
+    )
+    if ckpt is not None:
+        arrays, meta = load_checkpoint(ckpt)
+        st.restore(arrays, meta)
+        log.resume_at(st.episodes)
+        print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
+    log.write_config(config_doc)
+
+    def save() -> None:
+        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
+
+    def train_row(episodes: int, eps: float, terms: np.ndarray, chunk_s: float) -> dict[str, Any]:
+        """One ``train.csv`` row (always the same keys: the CSV header is the first row's)."""
+        recent = {f"{k}_100": float(np.mean(st.history[k][-100:])) if st.history.get(k) else float("nan") for k in (*task.metric_names, "return")}
+        return {
+            "episodes": episodes, "env_steps": st.env_steps, "updates": st.updates, "epsilon": eps,
+            **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)), **recent, "chunk_s": chunk_s, "wall_s": time.time() - t_start,
+        }
+
+    def train_updates(count: int, beta: float, coeffs: np.ndarray, where: str) -> np.ndarray:
+        """``count`` updates (rounded up to whole blocks); mean loss terms."""
+        k = cfg.updates_per_call
+        terms_all = []
+        if count <= 0:
+            return np.full(len(LOSS_NAMES), np.nan)
+        for _ in range(-(-count // k)):
+            rng = st.rng()
+            rows, agents, w = st.buffer.sample(rng, k * cfg.batch_size, beta)
+            rows, agents, w = (x.reshape(k, cfg.batch_size) for x in (rows, agents, w))
+            st.q, td, terms = learner.update_block(st.q, st.target, st.buffer.batch(rows, agents, w), jnp.asarray(coeffs, jnp.float32))
+            st.buffer.update_priorities(rows.ravel(), agents.ravel(), np.asarray(td).ravel())
+            st.updates += k
+            if st.updates >= st.next_target:
+                st.target = _variables(st.q)
+                st.next_target = (st.updates // cfg.target_update_every + 1) * cfg.target_update_every
+            terms_all.append(np.asarray(terms))
+        out = np.mean(terms_all, axis=0) if terms_all else np.full(len(LOSS_NAMES), np.nan)
+        check_finite("Q loss", float(out[0]), where)
+        check_finite("Q network parameters", st.q.params, where)
+        return out
+
+    eval_task = make_task(dataclasses.replace(spec, enemy=cfg.eval_enemy_name())) if task.kind == "combat" else task
+    try:
+        if st.phase == "pretrain":
+            # ---- Phase 1: demonstrations ----------------------------------------------------------
+            if dataset:
+                ds = D.load_dataset(cfg.demonstrator, expect=task)
+                rows, done, seg, agree = demo_rows(learner, ds)
+                st.demo_stats = {"reward_reproduced": agree}
+                how = f"dataset; re-simulation reproduces {agree:.1%} of the recorded rewards"
+            else:
+                demo_pool = new_pool(task, st.next_key(), cfg.num_envs)
+                rows, done, seg, st.demo_stats = record_demos(learner, demo_pool, _variables(st.q), cfg.demo_observations, cfg.gamma)
+                how = f"{cfg.demonstrator_name()}: " + ", ".join(f"{k} {v:.3f}" for k, v in st.demo_stats.items())
+            st.buffer = new_buffer(int(done.size))
+            st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step, demo=True)
+            st.demo_stats.update(records=float(done.size), episodes=float(len(np.unique(seg))))
+            print(f"{done.size} demonstration records from {len(np.unique(seg))} episodes ({how})")
+            # ---- Phase 2: pre-training on demonstrations only ----------------------------------------
+            t0 = time.time()
+            td_on = 1.0 if cfg.pretrain_td else 0.0
+            coeffs = np.asarray([td_on, td_on * cfg.lambda_nstep, cfg.lambda_margin, cfg.lambda_l2, cfg.margin])
+            terms = train_updates(cfg.pretrain_updates, cfg.per_beta0, coeffs, "pre-training")
+            st.pretrain_done = st.updates
+            log.train.write([train_row(0, float("nan"), terms, 0.0)])
+            print(f"pre-trained on demonstrations: {st.updates} updates ({time.time() - t0:.0f}s), " + ", ".join(f"{n} {v:.4f}" for n, v in zip(LOSS_NAMES, terms, strict=True)))
+            if not cfg.keep_demos:
+                st.buffer.drop_demos()
+            st.phase = "online"
+            save()
+
+        # ---- Phase 3: interaction ---------------------------------------------------------------------
+        prog = Progress(cfg.total_episodes, f"{algo} {spec.label()}", enabled=cfg.progress, start=st.episodes)
+        primary = "won" if task.kind == "combat" else "failed"
+        secondary = "terminal_hp_reward" if task.kind == "combat" else "return"
+        lam_e = cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
+        coeffs = np.asarray([1.0, cfg.lambda_nstep, lam_e, cfg.lambda_l2, cfg.margin])
+        next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+        next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else None
+        terms = np.full(len(LOSS_NAMES), np.nan)
+        while st.episodes < cfg.total_episodes:
+            t0 = time.time()
+            frac = min(1.0, st.episodes / max(cfg.eps_decay_episodes, 1)) if cfg.eps_decay_episodes > 0 else 1.0
+            eps = cfg.eps_start + (cfg.eps_end - cfg.eps_start) * frac
+            st.pool, out = learner.collect_chunk(st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool))
+            rows, done, seg, stats = online_rows(out, st.assembler)
+            st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step)
+            n_new = int(next(iter(stats.values())).shape[0]) if stats else 0
+            first_ep = st.episodes
+            st.episodes += n_new
+            st.env_steps += cfg.chunk_steps * cfg.num_envs
+            for k, v in stats.items():
+                st.history.setdefault(k, []).extend(v.tolist())
+            st.update_credit += cfg.chunk_steps * cfg.num_envs / cfg.train_every
+            if st.buffer.live_mask().any() and st.update_credit >= cfg.updates_per_call:
+                blocks = int(st.update_credit // cfg.updates_per_call)
+                st.update_credit -= blocks * cfg.updates_per_call
+                beta = cfg.per_beta0 + (1.0 - cfg.per_beta0) * min(1.0, st.episodes / max(cfg.total_episodes, 1))
+                terms = train_updates(blocks * cfg.updates_per_call, beta, coeffs, f"episode {st.episodes}")
+            row = train_row(st.episodes, eps, terms, time.time() - t0)
+            recent = {k: row[f"{k}_100"] for k in (primary, secondary)}
+            log.train.write([row])
+            log.scalars(st.episodes, row)
+            log.episodes.write([{"episode": first_ep + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}} for i in range(n_new)])
+            prog.update(st.episodes, f"{primary}@100 {recent.get(primary, float('nan')):.2f}  {secondary}@100 {recent.get(secondary, float('nan')):+.3f}  loss {terms[0]:.4f}")
+            if next_eval is not None and st.episodes >= next_eval:
+                res = E.evaluate_task(eval_task, learner.module, _variables(st.q), n=cfg.eval_episodes, seed=cfg.seed + 1)
+                log.scalars(st.episodes, {k: v for k, v in res.items() if isinstance(v, float)}, prefix="eval")
+                next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every
+            if st.episodes >= next_ckpt:
+                save()
+                next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+        prog.close()
+    except TrainingDiverged as e:
+        log.close()
+        import sys
+
+        print(f"hybridmarl: training stopped: {e}", file=sys.stderr)
+        return 3
+    save()
+
+    # ---- Phase 4: evaluation ----------------------------------------------------------------------------
+    result = E.evaluate_task(eval_task, learner.module, _variables(st.q), n=cfg.eval_episodes, seed=cfg.seed + 1)
+    result.update(enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, updates=st.updates, wall_s=time.time() - t_start)
+    (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
+    log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
+    plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{algo}: {spec.label()}, A^D = {cfg.demonstrator_name()}")
+    log.close()
+    print(_result_line(task, result))
+    return 0
+
+
+__all__ = ["ALGO", "PRESETS", "DQfDConfig", "PrioritizedReplay", "QLearner", "build_learner", "train"]

@@ -1,0 +1,75 @@
+"""OGTL, Opponent-Guided Tactic Learning (Hu et al., IJCAI 2018; the paper's baseline of Section
+5.2, reference §3): imitate the scripted tactic, then improve it by reinforcement learning.
+
+    Stage 1  tactic imitation: the shared Q network (the actor's architecture, |A| outputs) is
+             fitted to the demonstrator's actions (the same sub-optimal demonstrator the other
+             methods get, playing the role of OGTL's "human-made agent") by the large-margin
+             supervised loss, with DQfD-style TD terms on the same data (``pretrain_td``,
+             default on) so that stage 2 starts from Q-values on the reward's scale, not only
+             from an action ranking. The reference leaves the exact stage-1 objective open
+             (§3, §7 item 2); ``--no-pretrain-td`` gives the purely supervised variant.
+    Stage 2  RL fine-tuning with the per-agent rewards (``algos.rewards``, Section 5.2: "the
+             same to [Hu et al., 2018]") and **no demonstration loss**: double DQN with a target
+             network and uniform replay of the agents' own transitions only; the demonstrations
+             leave the buffer and the margin loss is off (the sequential "imitate, then RL" that
+             the reference contrasts with DQfD's joint use of demonstrations). ε-greedy
+             exploration decays from 0.1 to 0.01 over the first quarter of the episodes (not
+             given by the reference).
+    Stage 3  evaluation (legal argmax of Q; ``hybridmarl eval`` loads it like an actor).
+
+The machinery (buffer, losses, compiled updates, checkpoints, resume) is ``algos.dqfd``'s; only
+the switches differ. Not implemented: the optional reward-shaping bonus for agreeing with the
+script in stage 2 (reference §3, "optionally").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from hybridmarl.algos import dqfd
+
+ALGO = "ogtl"
+
+
+@dataclass(frozen=True)
+class OGTLConfig(dqfd.DQfDConfig):
+    """OGTL: imitation of the demonstrator, then DQN on per-agent rewards without demonstrations."""
+
+    keep_demos: bool = False
+    """Keep the demonstrations in the buffer in stage 2 (OGTL: no, reference §3)."""
+    lambda_margin_online: float | None = 0.0
+    """λ2 of the margin loss in stage 2 (OGTL: 0, "no demonstration loss", reference §3)."""
+    lambda_nstep: float = 0.0
+    """λ1 of the n-step TD loss (OGTL's RL is plain DQN, reference §3: 0)."""
+    per_alpha: float = 0.0
+    """Replay prioritisation exponent (0: DQN's uniform replay, reference §3)."""
+    eps_start: float = 0.1
+    """ε-greedy at the start of stage 2 (not given by the reference)."""
+    eps_end: float = 0.01
+    """ε-greedy after the decay (not given by the reference)."""
+    eps_decay_episodes: int = 5_000
+    """Episodes of linear ε decay (a quarter of ``total_episodes``; not given by the reference)."""
+
+
+def _from(make):
+    def preset(env: str) -> OGTLConfig:
+        base = make(env)
+        kw = {f.name: getattr(base, f.name) for f in dataclasses.fields(dqfd.DQfDConfig)}
+        ogtl = OGTLConfig()
+        for name in ("keep_demos", "lambda_margin_online", "lambda_nstep", "per_alpha", "eps_start", "eps_end"):
+            kw[name] = getattr(ogtl, name)
+        kw["eps_decay_episodes"] = max(1, base.total_episodes // 4)
+        return OGTLConfig(**kw)
+
+    return preset
+
+
+PRESETS = {name: _from(make) for name, make in dqfd.PRESETS.items()}
+
+
+def train(cfg: OGTLConfig) -> int:
+    return dqfd.train(cfg, algo=ALGO)
+
+
+__all__ = ["ALGO", "PRESETS", "OGTLConfig", "train"]
