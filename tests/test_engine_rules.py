@@ -243,7 +243,7 @@ def test_no_jit_equals_jit(rules):
 
     jitted = jax.jit(turn)
     a, b = st, st
-    for _ in range(12):
+    for _ in range(6):
         a = jitted(a)
         with jax.disable_jit():
             b = turn(b)

@@ -30,7 +30,7 @@ from hybridmarl.search.moves import (
 
 M = "Terran_Marine"
 SLOTS = 4
-UCT = "uct:time_ms=0,traversals=24,batch=8"
+UCT = "uct:time_ms=0,traversals=16,batch=8"
 ABCD = "abcd:time_ms=0,nodes=40,batch=8,max_children=8"
 PGS = "pgs:time_ms=0"
 
@@ -93,7 +93,7 @@ def test_uct_stats_and_budget(rules, decision_states):
     player.decide(decision_states[4], rules, 0)
     st = player.stats
     assert st is not None and st.algorithm == "uct"
-    assert st.traversals == 24 and st.playouts <= 24 and not st.fallback
+    assert st.traversals == 16 and st.playouts <= 16 and not st.fallback
     assert st.nodes >= 1 and st.depth >= 1
 
 
