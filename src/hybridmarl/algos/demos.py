@@ -40,7 +40,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.losses import bc_loss
@@ -346,14 +345,12 @@ def _bc_fit_fn(spec: tuple[tuple[int, ...], int], optimizer: tuple[str, float], 
         def one(actor, k):
             idx = jax.random.randint(k, (batch_size,), 0, m)
 
-            def loss_fn(params):
-                logits, bs = nets.apply_train(module, params, actor.batch_stats, obs[idx])
-                return bc_loss(logits, acts[idx], legal[idx]), bs
+            def loss_fn(params, batch_stats):
+                logits, bs = nets.apply_train(module, params, batch_stats, obs[idx])
+                return bc_loss(logits, acts[idx], legal[idx]), (bs, None)
 
-            (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(actor.params)
-            updates, opt = tx.update(grads, actor.opt_state, actor.params)
-            params = optax.apply_updates(actor.params, updates)
-            return actor.replace(params=params, batch_stats=bs, opt_state=opt, step=actor.step + 1), loss
+            actor, loss, _ = nets.sgd_step(actor, tx, loss_fn)
+            return actor, loss
 
         return jax.lax.scan(one, actor, jax.random.split(key, steps))
 

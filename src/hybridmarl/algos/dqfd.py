@@ -60,7 +60,6 @@ from typing import Any, Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.checkpoint import (
@@ -400,17 +399,15 @@ class QLearner:
             y1 = jax.lax.stop_gradient(mb["reward"] + mb["disc1"] * v[:b])
             yn = jax.lax.stop_gradient(mb["nret"] + mb["ndisc"] * v[b:])
 
-            def loss_fn(params):
-                qv, bs = nets.apply_train(mod, params, q.batch_stats, obs)
+            def loss_fn(params, batch_stats):
+                qv, bs = nets.apply_train(mod, params, batch_stats, obs)
                 q_sa = jnp.take_along_axis(qv, mb["actions"][:, None], axis=-1)[:, 0]
                 td1, tdn = y1 - q_sa, yn - q_sa
                 j_e = large_margin_loss(qv, mb["actions"], legal, coeffs[4]) * mb["demo"]
                 terms = jnp.stack([jnp.mean(mb["weight"] * huber(td1)), jnp.mean(mb["weight"] * huber(tdn)), jnp.mean(mb["weight"] * j_e), l2_penalty(params)])
-                return jnp.dot(coeffs[:4], terms), (bs, td1, terms)
+                return jnp.dot(coeffs[:4], terms), (bs, (td1, terms))
 
-            (loss, (bs, td1, terms)), grads = jax.value_and_grad(loss_fn, has_aux=True)(q.params)
-            updates, opt = tx.update(grads, q.opt_state, q.params)
-            q = q.replace(params=optax.apply_updates(q.params, updates), batch_stats=bs, opt_state=opt, step=q.step + 1)
+            q, loss, (td1, terms) = nets.sgd_step(q, tx, loss_fn)
             return q, (jnp.abs(td1), jnp.concatenate([loss[None], terms]))
 
         q, (td, terms) = jax.lax.scan(one, q, batch)

@@ -50,7 +50,6 @@ from typing import Any, Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
@@ -307,13 +306,11 @@ class Learner:
             idx = jax.random.randint(jax.random.fold_in(key, i), (batch,), 0, jnp.maximum(size, 1))
             feats = jax.vmap(task.value_features)(jax.tree.map(lambda x: x[idx], states))
 
-            def loss_fn(params):
-                v, bs = nets.apply_train(mod, params, critic.batch_stats, feats)
-                return critic_loss(v[:, 0], returns[idx]), bs
+            def loss_fn(params, batch_stats):
+                v, bs = nets.apply_train(mod, params, batch_stats, feats)
+                return critic_loss(v[:, 0], returns[idx]), (bs, None)
 
-            (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(critic.params)
-            updates, opt = tx.update(grads, critic.opt_state, critic.params)
-            critic = critic.replace(params=optax.apply_updates(critic.params, updates), batch_stats=bs, opt_state=opt, step=critic.step + 1)
+            critic, loss, _ = nets.sgd_step(critic, tx, loss_fn)
             return critic, total + loss
 
         critic, total = jax.lax.fori_loop(0, num_steps, one, (critic, jnp.zeros((), jnp.float32)))
@@ -327,15 +324,13 @@ class Learner:
             actor, total = c
             idx = jax.random.randint(jax.random.fold_in(key, i), (batch,), 0, jnp.maximum(size, 1))
 
-            def loss_fn(params):
-                logits, bs = nets.apply_train(mod, params, actor.batch_stats, rows["obs"][idx])
+            def loss_fn(params, batch_stats):
+                logits, bs = nets.apply_train(mod, params, batch_stats, rows["obs"][idx])
                 if target == "best":
-                    return bc_loss(logits, rows["target"][idx], rows["legal"][idx]), bs
-                return actor_loss(logits, rows["adv"][idx], rows["legal"][idx]), bs
+                    return bc_loss(logits, rows["target"][idx], rows["legal"][idx]), (bs, None)
+                return actor_loss(logits, rows["adv"][idx], rows["legal"][idx]), (bs, None)
 
-            (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(actor.params)
-            updates, opt = tx.update(grads, actor.opt_state, actor.params)
-            actor = actor.replace(params=optax.apply_updates(actor.params, updates), batch_stats=bs, opt_state=opt, step=actor.step + 1)
+            actor, loss, _ = nets.sgd_step(actor, tx, loss_fn)
             return actor, total + loss
 
         actor, total = jax.lax.fori_loop(0, num_steps, one, (actor, jnp.zeros((), jnp.float32)))
@@ -382,13 +377,11 @@ class Learner:
                     loss = bc_loss(logits, res.actions.reshape(b * n), legal.reshape(b * n, na), flat_w)
                 else:
                     loss = actor_loss(logits, adv.reshape(b * n, na), legal.reshape(b * n, na), flat_w)
-                return loss, bs
+                return loss, (bs, None)
 
             def sgd_step(_, c):
                 net, _ = c
-                (loss, bs), grads = jax.value_and_grad(loss_fn, has_aux=True)(net.params, net.batch_stats)
-                updates, opt = tx.update(grads, net.opt_state, net.params)
-                net = net.replace(params=optax.apply_updates(net.params, updates), batch_stats=bs, opt_state=opt, step=net.step + 1)
+                net, loss, _ = nets.sgd_step(net, tx, loss_fn)
                 return net, loss
 
             if online:

@@ -22,7 +22,7 @@ Batch norm, train vs eval (Flax linen ``BatchNorm``):
 from __future__ import annotations
 
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, cast
 
 import flax.linen as nn
@@ -90,6 +90,15 @@ def init_net(module: MLP, key: jax.Array, in_dim: int, tx: optax.GradientTransfo
         opt_state=tx.init(params),
         step=jnp.zeros((), jnp.int32),
     )
+
+
+def sgd_step(net: NetState, tx: optax.GradientTransformation, loss_fn: Callable[[Any, Any], tuple[jax.Array, tuple[Any, Any]]]) -> tuple[NetState, jax.Array, Any]:
+    """One optimiser step of ``net``: ``loss_fn(params, batch_stats) -> (loss, (new_batch_stats,
+    extra))``; returns ``(net', loss, extra)`` (the one place every learner updates a network)."""
+    (loss, (bs, extra)), grads = jax.value_and_grad(loss_fn, has_aux=True)(net.params, net.batch_stats)
+    updates, opt = tx.update(grads, net.opt_state, net.params)
+    net = net.replace(params=optax.apply_updates(net.params, updates), batch_stats=bs, opt_state=opt, step=net.step + 1)
+    return net, loss, extra
 
 
 def init_variables(module: MLP, key: jax.Array, in_dim: int) -> dict:

@@ -71,6 +71,7 @@ every default; :func:`describe_options` prints it.
 
 from __future__ import annotations
 
+import abc
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -374,7 +375,7 @@ class DeviceArgs:
         self.num_slots = consts.num_slots
 
 
-class SearchPlayer:
+class SearchPlayer(abc.ABC):
     """Shared plumbing of the search players: seeding, root packing, statistics, timing."""
 
     algorithm = ""
@@ -413,8 +414,9 @@ class SearchPlayer:
         self._stats = stats
         return np.asarray(move, np.int32)
 
+    @abc.abstractmethod
     def _search(self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float) -> np.ndarray:
-        raise NotImplementedError
+        """The algorithm's search from the packed root: the move of player ``p``."""
 
     def warmup(self, state: GameState, rules: Rules) -> float:
         """Compile every program this player uses for ``state``'s shape; returns seconds spent."""
@@ -423,8 +425,9 @@ class SearchPlayer:
         self._warmup(root, DeviceArgs(consts, rules))
         return time.perf_counter() - t0
 
+    @abc.abstractmethod
     def _warmup(self, root: np.ndarray, dev: DeviceArgs) -> None:
-        raise NotImplementedError
+        """Compile the algorithm's programs for this root's shapes."""
 
 
 def auto_batch(num_slots: int) -> int:
