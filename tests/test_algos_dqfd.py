@@ -210,15 +210,42 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     assert "resumed" in capsys.readouterr().out
     _, meta = load_checkpoint(latest_checkpoint(run))
     assert meta["episodes"] >= 8
-    # OGTL: same machinery; after imitation the demonstrations leave the buffer.
+    # OGTL: same machinery; after imitation the demonstrations leave the buffer. With the
+    # agreement bonus (constant 0.5 here) every stage-2 agent reward is the per-agent damage
+    # reward plus 0.5 per agent that played the script's action.
     og = tmp_path / "ogtl"
-    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(og)]) == 0
+    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(og), "--agreement-bonus", "0.5"]) == 0
     capsys.readouterr()
     arrays, meta = load_checkpoint(latest_checkpoint(og))
-    assert not subtree(arrays, "buffer")["valid"][:64].any()
+    buf = subtree(arrays, "buffer")
+    assert not buf["valid"][:64].any()
     cfg = json.loads((og / "config.json").read_text())
     assert cfg["algo"] == "ogtl" and cfg["config"]["keep_demos"] is False and cfg["config"]["lambda_margin_online"] == 0.0
+    assert cfg["config"]["agreement_bonus"] == 0.5
+    size = int(buf["counters"][4])
+    live = demo_cap + np.arange(size)
+    hp, hp2 = buf["state.game.hp"][live], buf["next.game.hp"][live]
+    h0 = buf["state.init_hp"][live, 0].astype(np.float64)
+    env_r = ((hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) - (hp[:, 0].sum(-1) - hp[:, 1].sum(-1))) / h0
+    terminal = (hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) / h0
+    ended = buf["disc1"][live].max(axis=1) == 0
+    agreeing = (buf["reward"][live].sum(1) - np.where(ended, n * terminal, 0.0) - env_r) / 0.5
+    np.testing.assert_allclose(agreeing, np.round(agreeing), atol=1e-4)
+    assert agreeing.min() > -1e-4 and agreeing.max() <= n + 1e-4 and agreeing.max() >= 1
+    with open(og / "train.csv") as f:
+        assert {float(r["agreement_bonus"]) for r in list(csv.DictReader(f))[1:]} == {0.5}
     for d in (run, og):
         assert main(["eval", "--run-dir", str(d), "--n", "8", "--json"]) == 0
         res = _one_json(capsys.readouterr().out)
         assert res["n"] == 8 and res["scenario"] == "m3v3" and res["enemy"] == "attack-weakest" and 0.0 <= res["W"] <= 1.0
+
+
+def test_ogtl_agreement_schedule_decays_linearly_and_is_off_by_default():
+    from hybridmarl.algos import ogtl
+
+    assert ogtl.agreement_schedule(ogtl.OGTLConfig()) is None
+    w = ogtl.agreement_schedule(ogtl.OGTLConfig(agreement_bonus=0.2, agreement_decay_episodes=100))
+    assert w is not None
+    assert [w(0), w(50), w(100), w(500)] == pytest.approx([0.2, 0.1, 0.0, 0.0])
+    const = ogtl.agreement_schedule(ogtl.OGTLConfig(agreement_bonus=0.2))
+    assert const is not None and const(10_000) == pytest.approx(0.2)

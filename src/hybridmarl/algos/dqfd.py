@@ -54,6 +54,7 @@ import dataclasses
 import functools
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -329,9 +330,12 @@ class PrioritizedReplay:
 class QLearner:
     """The Q network, its optimiser and the jitted functions of one (task, static settings)."""
 
-    def __init__(self, task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None) -> None:
+    def __init__(self, task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> None:
         self.task = task
         self.demo_policy = task.demonstrator(demo_script) if demo_script else None
+        if agreement and self.demo_policy is None:
+            raise TaskError("the agreement bonus (OGTL's reward shaping) needs a script demonstrator, not a dataset")
+        self.agreement = agreement
         self.module = nets.actor_module(task.num_actions, hidden)
         self.tx = nets.make_optimizer(optimizer, lr, momentum)
         self.b = num_envs
@@ -342,7 +346,7 @@ class QLearner:
     def _transition(self, state: Any, actions: jax.Array, next_state: Any, done: jax.Array, info: dict) -> dict:
         """What a buffer row needs from one step ``state -> next_state``."""
         task = self.task
-        return {
+        row = {
             "next": next_state,
             "actions": actions.astype(jnp.int32),
             "agent_reward": agent_rewards(task.kind, task.num_agents, state, next_state, done, info),
@@ -350,6 +354,14 @@ class QLearner:
             "active_next": task.env.agent_active(next_state),
             "done": done,
         }
+        if self.agreement and self.demo_policy is not None:
+            # 1 where an agent with a choice played what the script plays in the same state
+            # (OGTL's optional shaping, reference §3). The scripts are deterministic; the fixed
+            # key only matters for an ``:eps`` demonstrator.
+            scripted = self.demo_policy(jax.random.key(0), state)
+            choice = jnp.sum(task.avail(state), axis=-1) >= 2
+            row["agrees"] = ((actions == scripted) & choice & row["active"]).astype(jnp.float32)
+        return row
 
     def _on_step(self, states, actions, next_states, reward, done, info):
         del reward
@@ -415,8 +427,8 @@ class QLearner:
 
 
 @functools.lru_cache(maxsize=8)
-def build_learner(task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None) -> QLearner:
-    return QLearner(task, hidden, optimizer, lr, momentum, num_envs, chunk_steps, demo_script)
+def build_learner(task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> QLearner:
+    return QLearner(task, hidden, optimizer, lr, momentum, num_envs, chunk_steps, demo_script, agreement)
 
 
 LOSS_NAMES = ("loss", "td_loss", "nstep_loss", "margin_loss", "l2")
@@ -560,8 +572,12 @@ def _variables(q: nets.NetState) -> dict:
     return {"params": q.params, "batch_stats": q.batch_stats}
 
 
-def train(cfg: DQfDConfig, algo: str = ALGO) -> int:
-    """The whole run (``algo`` names it: ``dqfd``, or ``ogtl`` with OGTL's switches)."""
+def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | None = None) -> int:
+    """The whole run (``algo`` names it: ``dqfd``, or ``ogtl`` with OGTL's switches).
+
+    ``shaping(episodes) -> w``: in the interaction phase every agent's reward gets ``w`` added
+    where it played the demonstrator script's action (OGTL's optional agreement bonus; ``w`` is
+    taken when the transitions enter the buffer). None: no bonus and nothing computed for it."""
     from hybridmarl.algos import demos as D
     from hybridmarl.algos import evaluate as E
     from hybridmarl.algos import plots
@@ -577,7 +593,9 @@ def train(cfg: DQfDConfig, algo: str = ALGO) -> int:
         raise TaskError(f"{run_dir} already holds checkpoints: pass --resume to continue it, or choose another --run-dir")
     log = RunLogger(run_dir, tensorboard=cfg.tensorboard)
     dataset = cfg.demonstrator_is_dataset()
-    learner = build_learner(task, tuple(cfg.actor_hidden), cfg.optimizer, cfg.lr, cfg.momentum, cfg.num_envs, cfg.chunk_steps, None if dataset else cfg.demonstrator_name())
+    if shaping is not None and dataset:
+        raise TaskError("the agreement bonus (OGTL's reward shaping) needs a script demonstrator, not a dataset")
+    learner = build_learner(task, tuple(cfg.actor_hidden), cfg.optimizer, cfg.lr, cfg.momentum, cfg.num_envs, cfg.chunk_steps, None if dataset else cfg.demonstrator_name(), shaping is not None)
     k_net, k_pool, k_run = jax.random.split(jax.random.key(cfg.seed), 3)
     q = nets.init_net(learner.module, k_net, task.obs_dim, learner.tx)
     template = task.state_template()
@@ -610,6 +628,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO) -> int:
         recent = {f"{k}_100": float(np.mean(st.history[k][-100:])) if st.history.get(k) else float("nan") for k in (*task.metric_names, "return")}
         return {
             "episodes": episodes, "env_steps": st.env_steps, "updates": st.updates, "epsilon": eps,
+            "agreement_bonus": shaping(episodes) if shaping is not None else 0.0,
             **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)), **recent, "chunk_s": chunk_s, "wall_s": time.time() - t_start,
         }
 
@@ -680,6 +699,9 @@ def train(cfg: DQfDConfig, algo: str = ALGO) -> int:
             eps = cfg.eps_start + (cfg.eps_end - cfg.eps_start) * frac
             st.pool, out = learner.collect_chunk(st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool))
             rows, done, seg, stats = online_rows(out, st.assembler)
+            if shaping is not None:
+                agrees = rows.pop("agrees")
+                rows["agent_reward"] = rows["agent_reward"] + np.float32(shaping(st.episodes)) * agrees
             st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step)
             n_new = int(next(iter(stats.values())).shape[0]) if stats else 0
             first_ep = st.episodes
