@@ -44,7 +44,7 @@ def _kind(a: int) -> str:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--env", default="combat", choices=["combat", "traffic_junction"])
     ap.add_argument("--scenario", default="m5v5")
     ap.add_argument("--enemy", default="attack-weakest")
