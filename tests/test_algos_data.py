@@ -216,3 +216,24 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
 
     with pytest.raises(TaskError, match="--resume"):
         train(dataclasses.replace(base, run_dir=str(tmp_path / "split")))
+
+
+def test_tj_time_penalty_reaches_the_task_and_costs_tau_per_car():
+    from hybridmarl.algos.hybrid import HybridConfig
+
+    spec = HybridConfig(env="traffic_junction", time_penalty=True).task_spec()
+    assert spec.time_penalty and "time penalty" in spec.label()
+    assert TaskSpec.from_dict({"env": "traffic_junction"}).time_penalty is False  # older run metadata
+    on, off = make_task(spec), make_task(TJ)
+    assert bool(on.params.time_penalty) and not bool(off.params.time_penalty)
+    demo = off.demonstrator("always-gas")
+    _, s = off.reset(jax.random.key(0))
+    for t in range(12):  # the same transitions under both rewards
+        k = jax.random.fold_in(jax.random.key(1), t)
+        a = demo(k, s)
+        _, s_off, r_off, _, _ = off.step(k, s, a)
+        _, _, r_on, _, _ = on.step(k, s, a)
+        tau_after = np.where(np.asarray(s.active), np.asarray(s.tau) + 1, 0).sum()
+        assert float(r_on) == pytest.approx(float(r_off) - 0.01 * tau_after, abs=1e-5)
+        s = s_off
+    assert int(np.asarray(s.active).sum()) > 0  # cars were on the road, so the penalty was tested

@@ -128,6 +128,9 @@ class EvalConfig:
     """Seed of the start states."""
     p_arrive: float | None = None
     """Traffic junction arrival probability (default: the run's, 0.2)."""
+    time_penalty: bool | None = None
+    """Traffic junction: CommNet's ``-0.01·τ`` time penalty in the reported return (default: the
+    run's setting; off for --script). The failure rate does not depend on it."""
     json: bool = False
     """Print exactly one JSON object (W, R, their 95% intervals, ...) on stdout."""
     out: str | None = None
@@ -163,6 +166,8 @@ def run_eval(cfg: EvalConfig) -> int:
             spec = dataclasses.replace(spec, scenario=cfg.scenario)
         if cfg.p_arrive is not None:
             spec = dataclasses.replace(spec, p_arrive=cfg.p_arrive)
+        if cfg.time_penalty is not None:
+            spec = dataclasses.replace(spec, time_penalty=cfg.time_penalty)
         enemy_label = None
         if spec.env == "combat":
             if cfg.enemy_run_dir:

@@ -75,6 +75,9 @@ class TrainConfig:
     p_arrive: float = 0.2
     """Traffic junction arrival probability (0.2: the evaluation value of CommNet's medium
     task, which the paper follows, Section 5.3)."""
+    time_penalty: bool = False
+    """Traffic junction: add CommNet's ``-0.01·τ`` per car per step (τ = steps since the car
+    entered; reference §1.0). Off: the paper's reward, collisions and arrivals only (Section 5.3)."""
     max_turns: int = 1000
     """Combat: cap on engine decision turns per episode (the env's default)."""
     seed: int = 0
@@ -106,7 +109,7 @@ class TrainConfig:
         if env == "combat":
             enemy = canonical_script("combat", self.enemy) if self.enemy else default_enemy(self.base_demonstrator())
             return TaskSpec(env=env, scenario=self.scenario, enemy=enemy, max_turns=self.max_turns)
-        return TaskSpec(env=env, p_arrive=self.p_arrive)
+        return TaskSpec(env=env, p_arrive=self.p_arrive, time_penalty=self.time_penalty)
 
     def demonstrator_is_dataset(self) -> bool:
         d = self.demonstrator

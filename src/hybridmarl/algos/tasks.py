@@ -103,6 +103,7 @@ class TaskSpec:
     max_turns: int = 1000
     p_arrive: float = 0.2
     num_cars: int = 10
+    time_penalty: bool = False
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -115,7 +116,7 @@ class TaskSpec:
     def label(self) -> str:
         if self.env == "combat":
             return f"{self.scenario} vs {self.enemy}"
-        return f"traffic_junction (p_arrive {self.p_arrive:g})"
+        return f"traffic_junction (p_arrive {self.p_arrive:g}{', time penalty' if self.time_penalty else ''})"
 
 
 class Task:
@@ -132,7 +133,7 @@ class Task:
                 self.params = self.env.default_params
             else:
                 self.env = envs.make("traffic_junction", num_agents=spec.num_cars)
-                self.params = self.env.default_params.replace(p_arrive=float(spec.p_arrive))
+                self.params = self.env.default_params.replace(p_arrive=float(spec.p_arrive), time_penalty=bool(spec.time_penalty))
         except TaskError:
             raise
         except (ValueError, KeyError) as e:
