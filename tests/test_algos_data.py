@@ -237,3 +237,13 @@ def test_tj_time_penalty_reaches_the_task_and_costs_tau_per_car():
         assert float(r_on) == pytest.approx(float(r_off) - 0.01 * tau_after, abs=1e-5)
         s = s_off
     assert int(np.asarray(s.active).sum()) > 0  # cars were on the road, so the penalty was tested
+
+
+def test_tj_replay_reports_the_time_penalty():
+    from hybridmarl.replay import record_tj_episode
+
+    _, off = record_tj_episode("always-gas", 0.3, seed=2, max_steps=15, cell_px=4)
+    _, on = record_tj_episode("always-gas", 0.3, seed=2, max_steps=15, cell_px=4, time_penalty=True)
+    assert on["time_penalty"] and not off["time_penalty"]
+    assert on["arrivals"] == off["arrivals"] and on["collisions"] == off["collisions"]  # same episode
+    assert on["return"] < off["return"]  # cars were on the road, each paying -0.01·τ per step

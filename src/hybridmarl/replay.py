@@ -71,6 +71,9 @@ class ReplayConfig:
     p_arrive: float = 0.2
     """Traffic Junction car arrival probability per entry and step (0.2: the paper's
     evaluation setting). Ignored for combat."""
+    time_penalty: bool = False
+    """Traffic junction: CommNet's -0.01·τ per car per step in the reported return (a run's own
+    setting with ``--run-dir``)."""
     run_dir: str | None = None
     """Play our side with the trained actor of this run directory (``hybridmarl train``; its
     newest checkpoint, legal argmax as in the paper's test protocol) instead of ``ours``. The
@@ -203,6 +206,7 @@ def record_tj_episode(
     max_steps: int = 40,
     *,
     cell_px: int = 24,
+    time_penalty: bool = False,
 ) -> tuple[list[np.ndarray], dict[str, Any]]:
     """Play one Traffic Junction episode with a demonstrator and render every step.
 
@@ -216,7 +220,7 @@ def record_tj_episode(
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
     policy = _tj_demonstrator(demonstrator) if isinstance(demonstrator, str) else demonstrator
     env = TrafficJunction()
-    params = env.default_params.replace(p_arrive=float(p_arrive))
+    params = env.default_params.replace(p_arrive=float(p_arrive), time_penalty=bool(time_penalty))
     step = jax.jit(env.step)
     act = jax.jit(policy)
     key = jax.random.key(seed)
@@ -238,6 +242,7 @@ def record_tj_episode(
         "env": env.name,
         "demonstrator": demonstrator if isinstance(demonstrator, str) else "policy",
         "p_arrive": float(p_arrive),
+        "time_penalty": bool(time_penalty),
         "seed": seed,
         "steps": len(states) - 1,
         "done": done,
@@ -309,7 +314,7 @@ def _trained_policy(cfg: ReplayConfig) -> tuple[ReplayConfig, Callable[..., jax.
     if spec.env == "combat":
         cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None)
         return cfg, lambda key, state: act(state)
-    cfg = dataclasses.replace(cfg, env="traffic_junction", p_arrive=spec.p_arrive, ours=None)
+    cfg = dataclasses.replace(cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None)
     return cfg, lambda state, key: act(state)
 
 
@@ -336,7 +341,7 @@ def run_replay(cfg: ReplayConfig) -> int:
         frames, summary = record_combat_episode(cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps)
     else:
         ours = trained[1] if trained else (cfg.ours or "yield-before-junction")
-        frames, summary = record_tj_episode(ours, cfg.p_arrive, cfg.seed, cfg.max_steps)
+        frames, summary = record_tj_episode(ours, cfg.p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
     if trained:
         summary["ours"] = f"policy:{cfg.run_dir}"
     try:
