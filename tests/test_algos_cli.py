@@ -36,7 +36,8 @@ def test_demos_train_clone_and_eval_traffic_junction(tmp_path, capsys):
     assert cfg["task"]["env"] == "traffic_junction" and cfg["config"]["demonstrator_name"] == "dataset:tj.safetensors"
     with open(run / "train.csv") as f:
         rows = list(csv.DictReader(f))
-    assert rows and {"actor_loss", "brd_sweeps", "critic_loss", "agree"} <= set(rows[0])
+    assert rows and {"actor_loss", "brd_sweeps", "critic_loss", "agree", "failed_100", "return_100"} <= set(rows[0])
+    assert rows[0]["failed_100"] == "nan" and 0.0 <= float(rows[-1]["failed_100"]) <= 1.0  # live once episodes end
     _, meta = load_checkpoint(latest_checkpoint(run))
     assert meta["episodes"] >= 8 and meta["phase"] == "joint"
     assert main(["eval", "--run-dir", str(run), "--n", "8", "--seed", "2", "--json"]) == 0

@@ -643,7 +643,9 @@ def train(cfg: HybridConfig) -> int:
                 check_finite("critic parameters", st.critic.params, f"episode {st.episodes}")
             # Logs.
             dt = time.time() - t0
-            recent = {k: float(np.mean(v[-100:])) for k, v in st.history.items() if v}
+            # The same keys in every row (the CSV header is the first row's, often written before
+            # any episode has finished): NaN until there is history.
+            recent = {k: float(np.mean(st.history[k][-100:])) if st.history.get(k) else float("nan") for k in (*task.metric_names, "return")}
             row = {
                 "episodes": st.episodes, "env_steps": st.env_steps, "iteration": st.iterations, **aux,
                 "critic_loss": st.critic_loss, "critic_updates": st.critic_updates,
