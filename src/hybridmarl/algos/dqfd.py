@@ -593,8 +593,6 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         raise TaskError(f"{run_dir} already holds checkpoints: pass --resume to continue it, or choose another --run-dir")
     log = RunLogger(run_dir, tensorboard=cfg.tensorboard)
     dataset = cfg.demonstrator_is_dataset()
-    if shaping is not None and dataset:
-        raise TaskError("the agreement bonus (OGTL's reward shaping) needs a script demonstrator, not a dataset")
     learner = build_learner(task, tuple(cfg.actor_hidden), cfg.optimizer, cfg.lr, cfg.momentum, cfg.num_envs, cfg.chunk_steps, None if dataset else cfg.demonstrator_name(), shaping is not None)
     k_net, k_pool, k_run = jax.random.split(jax.random.key(cfg.seed), 3)
     q = nets.init_net(learner.module, k_net, task.obs_dim, learner.tx)

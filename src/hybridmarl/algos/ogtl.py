@@ -24,8 +24,8 @@ Reward shaping (reference §3: "optionally shape the RL reward with a bonus when
 action agrees with the script's action in the same state ... scaled by a weight that decays"):
 ``--agreement-bonus W`` adds ``w(e) * 1[a_i = script_i(s)]`` to every stage-2 per-agent reward
 of an agent that had a choice, with ``w(e) = W * max(0, 1 - e / agreement_decay_episodes)`` at
-episode ``e`` (constant ``W`` if the decay is 0). Off (0) in the ``paper`` preset; it needs a
-script demonstrator (a dataset has no script to ask).
+episode ``e`` (constant ``W`` if the decay is 0). Off (0) in every preset; it needs a script
+demonstrator (a dataset has no script to ask).
 """
 
 from __future__ import annotations
