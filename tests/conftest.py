@@ -3,11 +3,19 @@ in the engine), so the whole suite stays within a few minutes on a 2-core CPU.""
 
 from __future__ import annotations
 
-from pathlib import Path
+import os
 
-import pytest
+# Compilation, not execution, dominates this suite (small scenarios, many distinct programs).
+# XLA's backend optimisation level 0 cuts the suite's CPU time by about a third (measured on
+# test_exact_resume: 98 -> 67 s user) and changes no result the tests check. It must be set
+# before jax is imported; a caller's own XLA_FLAGS win.
+os.environ.setdefault("XLA_FLAGS", "--xla_backend_optimization_level=0")
 
-from hybridmarl.engine.state import make_rules
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+from hybridmarl.engine.state import make_rules  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 TRACE_DIR = DATA / "sparcraft_traces"

@@ -4,6 +4,7 @@ atomicity) and exact resume of a training run."""
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import json
 
@@ -199,6 +200,7 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
     )
     assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "straight"))) == 0
     assert train(dataclasses.replace(base, total_episodes=4, run_dir=str(tmp_path / "split"))) == 0
+    _, m4 = load_checkpoint(latest_checkpoint(tmp_path / "split"))
     assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "split"), resume=True)) == 0
     a, ma = load_checkpoint(latest_checkpoint(tmp_path / "straight"))
     b, mb = load_checkpoint(latest_checkpoint(tmp_path / "split"))
@@ -208,9 +210,14 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     if actor_buffer:
         assert int(a["labels.size"]) > 0 and a["labels.obs"].shape[0] == actor_buffer
-    # Logs read as one uninterrupted run.
+    # Logs read as one uninterrupted run; wall and CPU time count across the resume.
     rows = (tmp_path / "split" / "episodes.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + 8
+    assert mb["wall_s"] > m4["wall_s"] > 0 and mb["cpu_s"] > m4["cpu_s"] > 0
+    with open(tmp_path / "split" / "train.csv") as f:
+        timed = [(float(r["wall_s"]), float(r["cpu_s"])) for r in csv.DictReader(f)]
+    walls, cpus = zip(*timed, strict=True)
+    assert list(walls) == sorted(walls) and list(cpus) == sorted(cpus) and walls[-1] > m4["wall_s"], timed
     # Without --resume an existing run is refused.
     from hybridmarl.algos.tasks import TaskError
 

@@ -206,10 +206,13 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     np.testing.assert_allclose(buf["reward"][live].sum(1) - np.where(ended, n * terminal, 0.0), env_r, atol=1e-5)
     assert env_r.min() < 0 or env_r.max() > 0  # some damage happened
     # --resume continues the same run to a larger budget.
+    first = meta
     assert main(["train", "--algo", "dqfd", "--run-dir", str(run), "--resume", "--total-episodes", "8", "--no-progress"]) == 0
     assert "resumed" in capsys.readouterr().out
     _, meta = load_checkpoint(latest_checkpoint(run))
     assert meta["episodes"] >= 8
+    # Wall and CPU time count across the resume (the first process's time is carried over).
+    assert meta["wall_s"] > first["wall_s"] > 0 and meta["cpu_s"] > first["cpu_s"] > 0
     # OGTL: same machinery; after imitation the demonstrations leave the buffer. With the
     # agreement bonus (constant 0.5 here) every stage-2 agent reward is the per-agent damage
     # reward plus 0.5 per agent that played the script's action.

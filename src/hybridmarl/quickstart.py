@@ -50,13 +50,16 @@ class QuickstartConfig:
     """Enemy script, for training and evaluation. Default: the paper's cross-validation (a model
     learned from c fights w, and vice versa)."""
     preset: str = "quick"
-    """Training preset of ``hybridmarl train --algo hybrid`` (``quick``: minutes on a CPU)."""
+    """Training preset of ``hybridmarl train --algo hybrid``: ``quick`` (the paper's method,
+    minutes on a CPU) or ``quick-lookahead`` (an extension, about 30 CPU-minutes, the best
+    measured recipe; README, "Results")."""
     seed: int = 0
     """Seed of training and of the evaluation's start states."""
     n: int = 100
     """Evaluation battles per policy (Section 5.1: 100)."""
     run_dir: str | None = None
-    """Where everything is written (default ``runs/quickstart-<scenario>-<demonstrator>``)."""
+    """Where everything is written (default ``runs/quickstart-<scenario>-<demonstrator>``, plus
+    ``-<preset>`` for a preset other than ``quick``)."""
     replay_seed: int = 0
     """Which battle the replay GIF shows (its start-state seed)."""
     train_args: tuple[str, ...] = ()
@@ -86,7 +89,10 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
         make_task(TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy))  # validates the scenario
     except errors as e:
         return algos_cli._fail(str(e))
-    run_dir = Path(cfg.run_dir or f"runs/quickstart-{cfg.scenario}-{demo}")
+    # Each preset gets its own default directory: a finished run is reused, and a run of
+    # another preset must not be mistaken for the one asked for.
+    suffix = "" if cfg.preset == "quick" else f"-{cfg.preset}"
+    run_dir = Path(cfg.run_dir or f"runs/quickstart-{cfg.scenario}-{demo}{suffix}")
     t0 = time.time()
 
     # ---- 1. train (or resume, or reuse a finished run) -------------------------------------------------

@@ -530,6 +530,9 @@ class RunState:
     next_target: int = 0
     demo_stats: dict[str, float] = dataclasses.field(default_factory=dict)
     history: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    # Wall / CPU seconds of earlier processes up to the checkpoint resumed from (as in hybrid).
+    wall_before: float = 0.0
+    cpu_before: float = 0.0
 
     COUNTERS = ("phase", "episodes", "env_steps", "updates", "pretrain_done", "update_credit", "next_target", "demo_stats")
 
@@ -566,6 +569,8 @@ class RunState:
         self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
         for k in self.COUNTERS:
             setattr(self, k, meta[k])
+        self.wall_before = float(meta.get("wall_s", 0.0))  # absent in older checkpoints
+        self.cpu_before = float(meta.get("cpu_s", 0.0))
 
 
 def _variables(q: nets.NetState) -> dict:
@@ -584,7 +589,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     from hybridmarl.algos.hybrid import _result_line
     from hybridmarl.algos.logger import Progress, RunLogger
 
-    t_start = time.time()
+    t_start, cpu_start = time.time(), time.process_time()
     spec = cfg.task_spec()
     task = make_task(spec)
     run_dir = resolve_run_dir(algo, cfg)
@@ -618,8 +623,11 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
     log.write_config(config_doc)
 
+    def elapsed() -> dict[str, float]:
+        return {"wall_s": st.wall_before + time.time() - t_start, "cpu_s": st.cpu_before + time.process_time() - cpu_start}
+
     def save() -> None:
-        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
+        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), **elapsed(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
 
     def train_row(episodes: int, eps: float, terms: np.ndarray, chunk_s: float) -> dict[str, Any]:
         """One ``train.csv`` row (always the same keys: the CSV header is the first row's)."""
@@ -627,7 +635,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         return {
             "episodes": episodes, "env_steps": st.env_steps, "updates": st.updates, "epsilon": eps,
             "agreement_bonus": shaping(episodes) if shaping is not None else 0.0,
-            **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)), **recent, "chunk_s": chunk_s, "wall_s": time.time() - t_start,
+            **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)), **recent, "chunk_s": chunk_s, **elapsed(),
         }
 
     def train_updates(count: int, beta: float, coeffs: np.ndarray, where: str) -> np.ndarray:
@@ -737,7 +745,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
 
     # ---- Phase 4: evaluation ----------------------------------------------------------------------------
     result = E.evaluate_task(eval_task, learner.module, _variables(st.q), n=cfg.eval_episodes, seed=cfg.seed + 1)
-    result.update(enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, updates=st.updates, wall_s=time.time() - t_start)
+    result.update(enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, updates=st.updates, **elapsed())
     (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
     log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
     plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{algo}: {spec.label()}, A^D = {cfg.demonstrator_name()}")
