@@ -8,6 +8,8 @@ from __future__ import annotations
 import csv
 import json
 
+import numpy as np
+
 from hybridmarl.algos.checkpoint import latest_checkpoint, load_checkpoint
 from hybridmarl.cli import main
 
@@ -49,6 +51,16 @@ def test_demos_train_clone_and_eval_traffic_junction(tmp_path, capsys):
     assert main(["train", "--algo", "bc", *TOY, "--env", "traffic_junction", "--demonstrator", str(data), "--run-dir", str(bc)]) == 0
     assert "cloned 90 observations" in capsys.readouterr().out
     assert json.loads((bc / "eval.json").read_text())["n"] == 8
+    # --time-penalty records the same play (same seed) under CommNet's penalised reward.
+    from hybridmarl.algos.demos import load_dataset
+
+    pen = tmp_path / "tj-penalty.safetensors"
+    assert main(["demos", "collect", "--env", "traffic_junction", "--demonstrator", "always-gas", "--n", "90", "--seed", "3", "--num-envs", "4", "--time-penalty", "--out", str(pen)]) == 0
+    plain, penal = load_dataset(data), load_dataset(pen)
+    assert penal.meta["task"]["time_penalty"] is True and plain.meta["task"]["time_penalty"] is False
+    np.testing.assert_array_equal(plain.arrays["actions"], penal.arrays["actions"])
+    gap = plain.arrays["reward"] - penal.arrays["reward"]
+    assert gap.min() >= 0 and gap.max() > 0  # the penalty only subtracts, and it bites
 
 
 def test_train_and_eval_combat(tmp_path, capsys):

@@ -252,6 +252,9 @@ class DemosCollectConfig:
     """Discount of the recorded returns (Section 5.1)."""
     p_arrive: float = 0.2
     """Traffic junction arrival probability."""
+    time_penalty: bool = False
+    """Traffic junction: record rewards and returns with CommNet's time penalty (-0.01·τ per car
+    per step; as ``train --time-penalty``). The paper's reward has none."""
     max_turns: int = 1000
     """Combat turn cap per episode."""
 
@@ -298,7 +301,7 @@ def run_demos(args: list[str]) -> int:
             enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
             spec = TaskSpec(env=env, scenario=cfg.scenario, enemy=enemy, max_turns=cfg.max_turns)
         else:
-            spec = TaskSpec(env=env, p_arrive=cfg.p_arrive)
+            spec = TaskSpec(env=env, p_arrive=cfg.p_arrive, time_penalty=cfg.time_penalty)
         ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma)
         path = D.save_dataset(ds, cfg.out)
     except errors as e:
