@@ -76,6 +76,16 @@ def test_train_and_eval_combat(tmp_path, capsys):
     assert res["n"] == 8 and res["enemy"] == "attack-weakest" and res["scenario"] == "m3v3"
     assert 0.0 <= res["W"] <= 1.0 and res["W_ci95"][0] <= res["W"] <= res["W_ci95"][1]
     assert res["R_ci95"][0] <= res["R"] <= res["R_ci95"][1]
+    # The newest checkpoint by default; an older one on request (by episodes); a missing one is named.
+    from hybridmarl.algos.checkpoint import list_checkpoints
+
+    older, newest = list_checkpoints(run)[-2:]
+    assert res["episodes"] == int(newest.name.split("_")[1]) >= 8
+    assert main(["eval", "--run-dir", str(run), "--checkpoint", str(int(older.name.split("_")[1])), "--n", "8", "--seed", "0", "--json"]) == 0
+    assert _one_json(capsys.readouterr().out)["episodes"] == int(older.name.split("_")[1]) < res["episodes"]
+    assert main(["eval", "--run-dir", str(run), "--checkpoint", "999", "--n", "8"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no checkpoint '999'" in err[0] and older.name in err[0], err
     # The main job on the finished run (reused, not retrained): D vs ours table, files, replay.
     assert main(["quickstart", "--run-dir", str(run), "--scenario", "m3v3", "--n", "4", "--no-progress"]) == 0
     out = capsys.readouterr().out

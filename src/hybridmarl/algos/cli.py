@@ -110,6 +110,9 @@ class EvalConfig:
 
     run_dir: str | None = None
     """Run directory of the policy (its newest checkpoint)."""
+    checkpoint: str | None = None
+    """With --run-dir: evaluate this checkpoint instead of the newest, by its episode count
+    (``700``) or its name (``ckpt_000000700``); the run keeps its last ``keep_checkpoints``."""
     script: str | None = None
     """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D)."""
     env: str | None = None
@@ -155,7 +158,7 @@ def run_eval(cfg: EvalConfig) -> int:
             raise errors[0]("give exactly one of --run-dir (a trained policy) or --script")
         bundle = None
         if cfg.run_dir is not None:
-            bundle = E.load_policy(cfg.run_dir)
+            bundle = E.load_policy(cfg.run_dir, cfg.checkpoint)
             spec = bundle.spec
             trained_from = bundle.config.get("config", {}).get("demonstrator_name", "")
         else:
@@ -210,6 +213,8 @@ def run_eval(cfg: EvalConfig) -> int:
         enemy=enemy_label,
         seed=cfg.seed,
     )
+    if bundle is not None:
+        res["episodes"] = bundle.meta.get("episodes")  # of the checkpoint evaluated
     text = json.dumps(res, sort_keys=True)
     if cfg.out:
         from hybridmarl.algos.checkpoint import write_json_atomic
