@@ -214,12 +214,13 @@ def _quick_rollout(env: str) -> HybridConfig:
 
 
 def _quick_lookahead(env: str) -> HybridConfig:
-    """An extension, not the paper's setting: the best recipe measured on the 2-core CPU
-    (README, "Results"). Alg. 1's Q simulates 4 steps (the actor plays 3 more) before the critic
+    """An extension, not the paper's setting: the recipe of our best CPU runs (README,
+    "Results"). Alg. 1's Q simulates 4 steps (the actor plays 3 more) before the critic
     bootstraps (``lookahead_steps=4``). Combat also trains the actor by cross-entropy toward
     Alg. 1's ã_g with 4 steps per env step (``actor_target="best"``, ``actor_steps=4``) for 700
-    episodes (m5v5: W 0.61 against D's 0.44, 28 CPU-min); Traffic Junction keeps Eq. 8 and
-    1,500 episodes (failure 0.176 against D's 0.959)."""
+    episodes (m5v5, seed 0: W 0.61 against D's 0.44 in 28 CPU-min; but seed 1 ends at W 0.22,
+    and the policy's W swings between checkpoints: it is not a stable improvement on D).
+    Traffic Junction keeps Eq. 8 and 1,500 episodes (failure 0.176 against D's 0.959)."""
     base = dataclasses.replace(_quick(env), lookahead_steps=4)
     if env == "traffic_junction":
         return base
