@@ -155,3 +155,29 @@ def test_min_gain_keeps_near_ties_at_the_start_action():
         if gain == 1e9:
             np.testing.assert_array_equal(acts, np.where(np.take_along_axis(lg, np.asarray(a0)[..., None], -1)[..., 0], np.asarray(a0), lg.argmax(-1)))
             assert int(np.asarray(res.changes).sum()) == 0
+
+
+def test_act_before_update_plays_the_pre_update_actor():
+    """``act_before_update``: the step played is the actor's argmax before Eq. 8's update, so one
+    step cannot depend on the learning rate (one step: later steps play the updated actor)."""
+    import dataclasses as dc
+
+    from hybridmarl.algos.hybrid import PRESETS, build_learner
+    from hybridmarl.algos.rollout import new_pool
+    from hybridmarl.algos.tasks import TaskSpec, make_task
+
+    task = make_task(TaskSpec(env="combat", scenario="m3v3", enemy="attack-weakest"))
+    base = dc.replace(PRESETS["toy"]("combat"), chunk_steps=1, actor_target="best", actor_steps=8, act_before_update=True)
+    pools = []
+    for lr in (0.0, 1.0):
+        learner = build_learner(task, dc.replace(base, actor_lr=lr, optimizer="sgd"), "attack-closest")
+        actor = nets.init_net(learner.actor_mod, jax.random.key(1), task.obs_dim, learner.actor_tx)
+        critic = nets.init_net(learner.critic_mod, jax.random.key(2), task.critic_dim, learner.critic_tx)
+        pool = new_pool(task, jax.random.key(3), base.num_envs)
+        critic_vars = {"params": critic.params, "batch_stats": critic.batch_stats}
+        pool, new_actor, _ = learner.train_chunk(pool, actor, critic_vars, None)
+        pools.append(pool)
+        if lr > 0:  # the update did happen
+            assert any(bool(jnp.any(a != b)) for a, b in zip(jax.tree.leaves(actor.params), jax.tree.leaves(new_actor.params), strict=True))
+    for a, b in zip(jax.tree.leaves(pools[0]), jax.tree.leaves(pools[1]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))

@@ -140,6 +140,13 @@ class HybridConfig(TrainConfig):
     """Actor gradient steps per environment step (1: one update per step as in Alg. 2). Without
     ``actor_buffer``: steps on the same batch of Alg. 1 results; with it: minibatch steps on the
     buffer after every chunk (``actor_steps * chunk_steps`` of them)."""
+    act_before_update: bool = False
+    """Which actor plays each training step. False: Alg. 2's order, update θ on s_t by Eq. 8,
+    then perform the updated actor's argmax on s_t (the paper). True (an extension): perform the
+    argmax of the actor as it was before that update, i.e. the decentralised policy itself, so
+    that training episodes (and the logged ``won_100``) are that policy's own. With the paper's
+    order the episode was played by an actor just fitted to Ã on those very states, which a
+    policy at evaluation does not have (README, "Results")."""
     actor_buffer: int = 0
     """0: the actor is updated on-line, on each step's Alg. 1 results, inside the compiled chunk
     (Alg. 2). N > 0 (an extension): keep the last N agent decisions labelled by Alg. 1 (obs,
@@ -287,7 +294,7 @@ class Learner:
                 iterations=cfg.brd_iterations, start=cfg.brd_start,
                 lookahead=cfg.lookahead_steps if cfg.lookahead_steps > 0 else 1_000_000,
                 actor_steps=cfg.actor_steps, target=cfg.actor_target, online=cfg.actor_buffer <= 0,
-                min_gain=cfg.brd_min_gain,
+                min_gain=cfg.brd_min_gain, act_before_update=cfg.act_before_update,
             )
         )
         self.fit_critic = jax.jit(functools.partial(self._fit_critic, batch=cfg.critic_batch_size))
@@ -352,7 +359,7 @@ class Learner:
         return actor, total / jnp.maximum(num_steps, 1).astype(jnp.float32)
 
     # Phase 3, K steps of Alg. 2 for all B games.
-    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float):
+    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float, act_before_update: bool):
         task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
 
         def step_fn(key, state, actions):
@@ -404,8 +411,8 @@ class Learner:
                 actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
             else:  # labels leave the chunk for the actor buffer (fit_actor between chunks)
                 loss = jnp.asarray(jnp.nan, jnp.float32)
-            # Perform the (updated) actor's legal argmax.
-            actions = nets.actor_actions(mod, actor, obs, legal)
+            # Perform the (updated) actor's legal argmax (Alg. 2), or the pre-update one.
+            actions = a_actor if act_before_update else nets.actor_actions(mod, actor, obs, legal)
             wf = weight.astype(jnp.float32)
             nw = jnp.maximum(jnp.sum(wf), 1.0)
             aux = {
@@ -437,6 +444,7 @@ def _static_cfg(cfg: HybridConfig) -> HybridConfig:
     keep = {
         "num_envs", "chunk_steps", "gamma", "brd_iterations", "brd_start", "lookahead_steps", "optimizer", "actor_lr",
         "critic_lr", "momentum", "critic_batch_size", "actor_hidden", "critic_hidden", "actor_steps", "actor_target", "actor_buffer", "actor_batch_size", "brd_min_gain",
+        "act_before_update",
     }
     return HybridConfig(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name in keep})
 
