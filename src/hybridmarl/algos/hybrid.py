@@ -29,7 +29,7 @@ Extensions, all off by default (the ``paper`` and ``quick`` presets are the pape
 (Alg. 1 switches only for a gain above a margin), ``actor_init = "clone"`` (the actor starts
 from θ^D), ``actor_target = "best"`` (cross-entropy toward Alg. 1's ã_g instead of Eq. 8),
 ``actor_buffer`` (the actor learns from a buffer of Alg. 1's labelled decisions between chunks,
-DAgger-style). Why they exist: measured at m5v5 (README, "Results"), Alg. 1 with the one-step
+DAgger-style), ``act_before_update`` (training plays the pre-update actor). Why they exist: measured at m5v5 (README, "Results"), Alg. 1 with the one-step
 critic Q makes the demonstrator's joint actions worse, while Alg. 1 with exact Q is nearly
 perfect when executed centrally; the open problem is the decentralised actor learning it.
 
