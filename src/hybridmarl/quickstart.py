@@ -51,8 +51,8 @@ class QuickstartConfig:
     learned from c fights w, and vice versa)."""
     preset: str = "quick"
     """Training preset of ``hybridmarl train --algo hybrid``: ``quick`` (the paper's method,
-    minutes on a CPU) or ``quick-lookahead`` (an extension, about 30 CPU-minutes, the best
-    measured recipe; README, "Results")."""
+    minutes on a CPU) or ``quick-lookahead`` (an extension, about 30 CPU-minutes, the recipe
+    of our best run; not stable across seeds: README, "Results")."""
     seed: int = 0
     """Seed of training and of the evaluation's start states."""
     n: int = 100

@@ -67,12 +67,17 @@ def write_json_atomic(path: str | Path, doc: Any) -> None:
         raise
 
 
+def checkpoint_name(step: int) -> str:
+    """Directory name of checkpoint ``step`` (the training counter at save time)."""
+    return f"ckpt_{int(step):09d}"
+
+
 def save_checkpoint(run_dir: str | Path, step: int, arrays: dict[str, np.ndarray], meta: dict[str, Any], keep: int = 3) -> Path:
     """Write checkpoint ``step`` atomically and prune to the newest ``keep``. Returns its path."""
     root = Path(run_dir) / CKPT_DIR
     root.mkdir(parents=True, exist_ok=True)
-    final = root / f"ckpt_{int(step):09d}"
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp_ckpt_{int(step):09d}_", dir=root))
+    final = root / checkpoint_name(step)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp_{final.name}_", dir=root))
     try:
         save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
         doc = dict(meta)
@@ -109,6 +114,22 @@ def list_checkpoints(run_dir: str | Path) -> list[Path]:
 def latest_checkpoint(run_dir: str | Path) -> Path | None:
     ck = list_checkpoints(run_dir)
     return ck[-1] if ck else None
+
+
+def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path:
+    """The newest complete checkpoint (``which`` None), or the one named by its step (``700``)
+    or its directory name (``ckpt_000000700``). :class:`CheckpointError` names what is kept."""
+    kept = list_checkpoints(run_dir)
+    if not kept:
+        raise CheckpointError(f"{run_dir}: no checkpoint found under {Path(run_dir) / CKPT_DIR}")
+    if which is None:
+        return kept[-1]
+    name = str(which).strip()
+    name = checkpoint_name(int(name)) if name.isdigit() else name
+    for p in kept:
+        if p.name == name:
+            return p
+    raise CheckpointError(f"{run_dir}: no checkpoint {which!r} (have: {', '.join(p.name for p in kept)})")
 
 
 def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:

@@ -18,6 +18,7 @@ import dataclasses
 import importlib
 import math
 import re
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -188,6 +189,26 @@ def check_finite(what: str, value: Any, where: str) -> None:
             f"{what} became NaN/inf at {where}; lower the learning rate or check the inputs "
             "(the last checkpoint is still valid: fix the cause and --resume)"
         )
+
+
+class RunClock:
+    """Wall and CPU seconds of a whole run across ``--resume``: this process's time plus what the
+    checkpoint it resumed from recorded (``elapsed()`` goes into every checkpoint's meta). Work
+    redone after a kill is counted once, by the process that redid it."""
+
+    def __init__(self) -> None:
+        self._wall0, self._cpu0 = time.time(), time.process_time()
+        self._wall_before = self._cpu_before = 0.0
+
+    def resume(self, meta: dict[str, Any]) -> None:
+        self._wall_before = float(meta.get("wall_s", 0.0))  # absent in older checkpoints
+        self._cpu_before = float(meta.get("cpu_s", 0.0))
+
+    def elapsed(self) -> dict[str, float]:
+        return {
+            "wall_s": self._wall_before + time.time() - self._wall0,
+            "cpu_s": self._cpu_before + time.process_time() - self._cpu0,
+        }
 
 
 def key_of(data: Any) -> jax.Array:

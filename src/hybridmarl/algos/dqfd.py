@@ -71,6 +71,7 @@ from hybridmarl.algos.checkpoint import (
     subtree,
 )
 from hybridmarl.algos.common import (
+    RunClock,
     TrainConfig,
     TrainingDiverged,
     check_finite,
@@ -530,9 +531,6 @@ class RunState:
     next_target: int = 0
     demo_stats: dict[str, float] = dataclasses.field(default_factory=dict)
     history: dict[str, list[float]] = dataclasses.field(default_factory=dict)
-    # Wall / CPU seconds of earlier processes up to the checkpoint resumed from (as in hybrid).
-    wall_before: float = 0.0
-    cpu_before: float = 0.0
 
     COUNTERS = ("phase", "episodes", "env_steps", "updates", "pretrain_done", "update_credit", "next_target", "demo_stats")
 
@@ -569,8 +567,6 @@ class RunState:
         self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
         for k in self.COUNTERS:
             setattr(self, k, meta[k])
-        self.wall_before = float(meta.get("wall_s", 0.0))  # absent in older checkpoints
-        self.cpu_before = float(meta.get("cpu_s", 0.0))
 
 
 def _variables(q: nets.NetState) -> dict:
@@ -589,7 +585,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     from hybridmarl.algos.hybrid import _result_line
     from hybridmarl.algos.logger import Progress, RunLogger
 
-    t_start, cpu_start = time.time(), time.process_time()
+    clock = RunClock()
     spec = cfg.task_spec()
     task = make_task(spec)
     run_dir = resolve_run_dir(algo, cfg)
@@ -619,15 +615,13 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     if ckpt is not None:
         arrays, meta = load_checkpoint(ckpt)
         st.restore(arrays, meta)
+        clock.resume(meta)
         log.resume_at(st.episodes)
         print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
     log.write_config(config_doc)
 
-    def elapsed() -> dict[str, float]:
-        return {"wall_s": st.wall_before + time.time() - t_start, "cpu_s": st.cpu_before + time.process_time() - cpu_start}
-
     def save() -> None:
-        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), **elapsed(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
+        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), **clock.elapsed(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
 
     def train_row(episodes: int, eps: float, terms: np.ndarray, chunk_s: float) -> dict[str, Any]:
         """One ``train.csv`` row (always the same keys: the CSV header is the first row's)."""
@@ -635,7 +629,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         return {
             "episodes": episodes, "env_steps": st.env_steps, "updates": st.updates, "epsilon": eps,
             "agreement_bonus": shaping(episodes) if shaping is not None else 0.0,
-            **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)), **recent, "chunk_s": chunk_s, **elapsed(),
+            **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)), **recent, "chunk_s": chunk_s, **clock.elapsed(),
         }
 
     def train_updates(count: int, beta: float, coeffs: np.ndarray, where: str) -> np.ndarray:
@@ -745,7 +739,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
 
     # ---- Phase 4: evaluation ----------------------------------------------------------------------------
     result = E.evaluate_task(eval_task, learner.module, _variables(st.q), n=cfg.eval_episodes, seed=cfg.seed + 1)
-    result.update(enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, updates=st.updates, **elapsed())
+    result.update(enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, updates=st.updates, **clock.elapsed())
     (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
     log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
     plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{algo}: {spec.label()}, A^D = {cfg.demonstrator_name()}")

@@ -26,13 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.algos import networks as nets
-from hybridmarl.algos.checkpoint import (
-    CheckpointError,
-    latest_checkpoint,
-    list_checkpoints,
-    load_checkpoint,
-    subtree,
-)
+from hybridmarl.algos.checkpoint import CheckpointError, find_checkpoint, load_checkpoint, subtree
 from hybridmarl.algos.tasks import Task, TaskSpec, make_task, unflatten_named
 
 Z95 = 1.959963984540054
@@ -186,18 +180,7 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> Pol
     if not cfg_path.is_file():
         raise CheckpointError(f"{run_dir}: no config.json (not a hybridmarl run directory)")
     doc = json.loads(cfg_path.read_text())
-    if checkpoint is None:
-        ck = latest_checkpoint(run_dir)
-        if ck is None:
-            raise CheckpointError(f"{run_dir}: no checkpoint found under {run_dir / 'checkpoints'}")
-    else:
-        known = {p.name: p for p in list_checkpoints(run_dir)}
-        name = str(checkpoint).strip()
-        if name.isdigit():
-            name = f"ckpt_{int(name):09d}"
-        if name not in known:
-            raise CheckpointError(f"{run_dir}: no checkpoint {checkpoint!r} (have: {', '.join(known) or 'none'})")
-        ck = known[name]
+    ck = find_checkpoint(run_dir, checkpoint)
     arrays, meta = load_checkpoint(ck)
     spec = TaskSpec.from_dict(doc["task"])
     task = make_task(spec)

@@ -29,9 +29,10 @@ Extensions, all off by default (the ``paper`` and ``quick`` presets are the pape
 (Alg. 1 switches only for a gain above a margin), ``actor_init = "clone"`` (the actor starts
 from θ^D), ``actor_target = "best"`` (cross-entropy toward Alg. 1's ã_g instead of Eq. 8),
 ``actor_buffer`` (the actor learns from a buffer of Alg. 1's labelled decisions between chunks,
-DAgger-style), ``act_before_update`` (training plays the pre-update actor). Why they exist: measured at m5v5 (README, "Results"), Alg. 1 with the one-step
-critic Q makes the demonstrator's joint actions worse, while Alg. 1 with exact Q is nearly
-perfect when executed centrally; the open problem is the decentralised actor learning it.
+DAgger-style), ``act_before_update`` (training plays the pre-update actor). Why they exist:
+measured at m5v5 (README, "Results"), Alg. 1 with the one-step critic Q makes the
+demonstrator's joint actions worse, while Alg. 1 with exact Q is nearly perfect when executed
+centrally; the open problem is the decentralised actor learning it.
 
 The whole of Phase 3's per-step work (Alg. 1 for all games, Eq. 7, Eq. 8, the env step, resets)
 runs as one compiled ``lax.scan`` of ``chunk_steps`` steps; the host only assembles finished
@@ -61,6 +62,7 @@ from hybridmarl.algos.checkpoint import (
     subtree,
 )
 from hybridmarl.algos.common import (
+    RunClock,
     TrainConfig,
     TrainingDiverged,
     check_finite,
@@ -472,11 +474,6 @@ class RunState:
     critic_loss: float = float("nan")
     demo_stats: dict[str, float] = dataclasses.field(default_factory=dict)
     history: dict[str, list[float]] = dataclasses.field(default_factory=dict)
-    # Wall and CPU seconds of earlier processes up to the checkpoint this run resumed from, so
-    # the logged wall_s / cpu_s count the whole run across resumes (work redone after a kill is
-    # counted once, by the process that redid it).
-    wall_before: float = 0.0
-    cpu_before: float = 0.0
 
     def next_key(self) -> jax.Array:
         k, sub = jax.random.split(key_of(self.key))
@@ -525,8 +522,6 @@ class RunState:
         self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
         for k in ("phase", "episodes", "env_steps", "iterations", "critic_updates", "next_critic_update", "critic_loss", "demo_stats"):
             setattr(self, k, meta[k])
-        self.wall_before = float(meta.get("wall_s", 0.0))  # absent in older checkpoints
-        self.cpu_before = float(meta.get("cpu_s", 0.0))
 
 
 def _vars(net: nets.NetState | None) -> Any:
@@ -543,7 +538,7 @@ def train(cfg: HybridConfig) -> int:
     from hybridmarl.algos.logger import Progress, RunLogger
 
     # ---- Phase 0: set-up ------------------------------------------------------------------------
-    t_start, cpu_start = time.time(), time.process_time()
+    clock = RunClock()
     spec = cfg.task_spec()
     task = make_task(spec)
     run_dir = resolve_run_dir(ALGO, cfg)
@@ -583,15 +578,13 @@ def train(cfg: HybridConfig) -> int:
     if ckpt is not None:
         arrays, meta = load_checkpoint(ckpt)
         st.restore(arrays, meta)
+        clock.resume(meta)
         log.resume_at(st.episodes)
         print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
     log.write_config(config_doc)
 
-    def elapsed() -> dict[str, float]:
-        return {"wall_s": st.wall_before + time.time() - t_start, "cpu_s": st.cpu_before + time.process_time() - cpu_start}
-
     def save() -> None:
-        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), **elapsed(), "algo": ALGO, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
+        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), **clock.elapsed(), "algo": ALGO, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
 
     if st.phase == "pretrain":
         # ---- Phase 1: the demonstrator A^D (Section 3) ----------------------------------------
@@ -682,7 +675,7 @@ def train(cfg: HybridConfig) -> int:
                 "episodes": st.episodes, "env_steps": st.env_steps, "iteration": st.iterations, **aux,
                 "critic_loss": st.critic_loss, "critic_updates": st.critic_updates,
                 **{f"{k}_100": v for k, v in recent.items()}, "chunk_s": dt,
-                "env_steps_per_s": cfg.chunk_steps * cfg.num_envs / max(dt, 1e-9), **elapsed(),
+                "env_steps_per_s": cfg.chunk_steps * cfg.num_envs / max(dt, 1e-9), **clock.elapsed(),
             }
             log.train.write([row])
             log.scalars(st.episodes, row)
@@ -715,7 +708,7 @@ def train(cfg: HybridConfig) -> int:
     result = E.evaluate_task(eval_task, learner.actor_mod, _vars(st.actor), n=cfg.eval_episodes, seed=cfg.seed + 1)
     result.update(
         enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes,
-        env_steps_per_s=sps, **elapsed(),
+        env_steps_per_s=sps, **clock.elapsed(),
     )
     (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
     log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
