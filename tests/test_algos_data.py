@@ -182,6 +182,70 @@ def test_checkpoint_round_trip_and_pruning(tmp_path):
         C.load_checkpoint(tmp_path / "checkpoints" / "ckpt_000000009")
     with pytest.raises(ValueError, match="shape"):
         unflatten_named({"w": jnp.zeros((3, 3))}, {"w": np.zeros((2, 3), np.float32)})
+    # A named checkpoint ("best") is replaced whole, never pruned, listed or resumed from.
+    with pytest.raises(C.CheckpointError, match="no best checkpoint"):
+        C.find_checkpoint(tmp_path, "best")
+    for step in (5, 6):
+        C.save_checkpoint(tmp_path, step, {"v": np.full(2, step, np.float32)}, {"note": step}, keep=2, name=C.BEST)
+    C.save_checkpoint(tmp_path, 7, C.prefixed(flatten_named(tree), "t"), {"note": 7}, keep=2)
+    best = C.find_checkpoint(tmp_path, "best")
+    arrays, meta = C.load_checkpoint(best)
+    assert best.name == "best" and meta["step"] == 6 and arrays["v"].tolist() == [6.0, 6.0]
+    assert [p.name for p in C.list_checkpoints(tmp_path)] == ["ckpt_000000004", "ckpt_000000007"]
+    assert C.latest_checkpoint(tmp_path).name == "ckpt_000000007"
+    assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.startswith(".")]
+
+
+def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
+    """--eval-every/--keep-best: due every k episodes, evaluated on the selection seed (never the
+    final evaluation's), a row per evaluation, ``best`` replaced only on improvement (W, then R),
+    and the comparison survives a resume through checkpoint metadata."""
+    from hybridmarl.algos.common import (
+        FINAL_EVAL_SEED,
+        SELECT_EVAL_SEED,
+        PeriodicEval,
+        selection_key,
+    )
+    from hybridmarl.algos.hybrid import HybridConfig
+    from hybridmarl.algos.logger import RunLogger
+
+    assert SELECT_EVAL_SEED != FINAL_EVAL_SEED
+    assert selection_key({"W": 0.5, "R": 0.1}) > selection_key({"W": 0.5, "R": 0.0}) > selection_key({"W": 0.4, "R": 0.9})
+    assert selection_key({"failure_rate": 0.2, "R": -5.0}) > selection_key({"failure_rate": 0.3, "R": 0.0})
+    cfg = HybridConfig(eval_every=10)
+    log = RunLogger(tmp_path, tensorboard=False)
+    scores = iter([(0.2, 0.0), (0.5, -0.1), (0.5, -0.2), (0.5, 0.3)])
+    seeds: list[int] = []
+
+    def evaluate(offset):
+        seeds.append(offset)
+        w, r = next(scores)
+        return {"n": 4, "W": w, "R": r, "W_ci95": [0.0, 1.0]}
+
+    def actor_arrays(e):
+        return lambda: {"actor.w": np.full(3, e, np.float32)}
+
+    pe = PeriodicEval(cfg, tmp_path, log, 0)
+    assert pe.maybe_run(9, evaluate, actor_arrays(9), {}) is None  # not due yet
+    for e in (10, 24, 31):
+        assert pe.maybe_run(e, evaluate, actor_arrays(e), {"episodes": e}) is not None
+    assert seeds == [SELECT_EVAL_SEED] * 3
+    arrays, meta = C.load_checkpoint(C.find_checkpoint(tmp_path, "best"))
+    assert meta["episodes"] == 24 and arrays["actor.w"].tolist() == [24.0] * 3 and meta["selection"]["W"] == 0.5
+    # Resume from a checkpoint written at episode 31: the same best, next evaluation at 40.
+    pe2 = PeriodicEval(cfg, tmp_path, log, 0)
+    pe2.resume(pe.meta(), 31)
+    assert pe2.maybe_run(39, evaluate, actor_arrays(39), {}) is None
+    assert pe2.maybe_run(40, evaluate, actor_arrays(40), {})["R"] == 0.3  # (0.5, 0.3) beats (0.5, -0.1)
+    assert C.load_checkpoint(C.find_checkpoint(tmp_path, "best"))[1]["episodes"] == 40
+    with open(tmp_path / "evals.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [(int(r["episodes"]), int(r["best"])) for r in rows] == [(10, 1), (24, 1), (31, 0), (40, 1)]
+    # --no-keep-best: evaluations are logged, nothing is saved.
+    off = PeriodicEval(HybridConfig(eval_every=10, keep_best=False), tmp_path / "off", RunLogger(tmp_path / "off", tensorboard=False), 0)
+    scores = iter([(0.9, 0.0)])
+    off.maybe_run(10, evaluate, actor_arrays(10), {})
+    assert off.meta() == {} and not (tmp_path / "off" / "checkpoints").exists()
 
 
 @pytest.mark.parametrize("actor_buffer", [0, 64])
@@ -197,6 +261,7 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
     base = dataclasses.replace(
         PRESETS["toy"]("traffic_junction"), demonstrator=str(data), progress=False, checkpoint_every=4,
         actor_buffer=actor_buffer, actor_target="best" if actor_buffer else "advantage",
+        eval_every=0 if actor_buffer else 3,  # periodic evaluation and the best policy resume too
     )
     assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "straight"))) == 0
     assert train(dataclasses.replace(base, total_episodes=4, run_dir=str(tmp_path / "split"))) == 0
@@ -210,6 +275,16 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     if actor_buffer:
         assert int(a["labels.size"]) > 0 and a["labels.obs"].shape[0] == actor_buffer
+    else:
+        straight, split = (C.find_checkpoint(tmp_path / r, "best") for r in ("straight", "split"))
+        (ba, bma), (bb, bmb) = C.load_checkpoint(straight), C.load_checkpoint(split)
+        assert bma["episodes"] == bmb["episodes"] and set(ba) == set(bb) and all(k.startswith("actor.") for k in ba)
+        for k in ba:
+            np.testing.assert_array_equal(ba[k], bb[k], err_msg=k)
+        evals = [(tmp_path / r / "evals.csv").read_text() for r in ("straight", "split")]
+        assert evals[0] == evals[1] and len(evals[0].strip().splitlines()) == 1 + 2  # episodes 3(+), 6(+)
+        final = json.loads((tmp_path / "straight" / "eval.json").read_text())
+        assert final["best"]["episodes"] == bma["episodes"] and "failure_rate" in final["best"]
     # Logs read as one uninterrupted run; wall and CPU time count across the resume.
     rows = (tmp_path / "split" / "episodes.csv").read_text().strip().splitlines()
     assert len(rows) == 1 + 8

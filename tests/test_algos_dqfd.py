@@ -217,8 +217,15 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     # agreement bonus (constant 0.5 here) every stage-2 agent reward is the per-agent damage
     # reward plus 0.5 per agent that played the script's action.
     og = tmp_path / "ogtl"
-    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(og), "--agreement-bonus", "0.5"]) == 0
-    capsys.readouterr()
+    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(og), "--agreement-bonus", "0.5", "--eval-every", "2"]) == 0
+    assert "best checkpoint (episode " in capsys.readouterr().out
+    # --eval-every kept the best periodically evaluated Q-network; eval --checkpoint best plays it.
+    best = json.loads((og / "eval.json").read_text())["best"]
+    assert best["n"] == 8 and 0.0 <= best["W"] <= 1.0 and best["selection"]["n"] == 8
+    assert main(["eval", "--run-dir", str(og), "--checkpoint", "best", "--n", "8", "--json"]) == 0
+    assert _one_json(capsys.readouterr().out)["episodes"] == best["episodes"]
+    with open(og / "evals.csv") as f:
+        assert {"episodes", "W", "R", "best"} <= set(next(csv.DictReader(f)))
     arrays, meta = load_checkpoint(latest_checkpoint(og))
     buf = subtree(arrays, "buffer")
     assert not buf["valid"][:64].any()

@@ -19,7 +19,13 @@ import numpy as np
 
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.checkpoint import latest_checkpoint, prefixed, save_checkpoint
-from hybridmarl.algos.common import TrainConfig, check_finite, config_to_dict, resolve_run_dir
+from hybridmarl.algos.common import (
+    FINAL_EVAL_SEED,
+    TrainConfig,
+    check_finite,
+    config_to_dict,
+    resolve_run_dir,
+)
 from hybridmarl.algos.tasks import TaskError, flatten_named, make_task
 
 ALGO = "bc"
@@ -94,7 +100,7 @@ def train(cfg: BCConfig) -> int:
 
     # ---- Phase 3: evaluation ------------------------------------------------------------------------
     eval_task = make_task(dataclasses.replace(spec, enemy=cfg.eval_enemy_name())) if task.kind == "combat" else task
-    res = E.evaluate_task(eval_task, module, {"params": actor.params, "batch_stats": actor.batch_stats}, n=cfg.eval_episodes, seed=cfg.seed + 1)
+    res = E.evaluate_task(eval_task, module, {"params": actor.params, "batch_stats": actor.batch_stats}, n=cfg.eval_episodes, seed=cfg.seed + FINAL_EVAL_SEED)
     res.update(bc_accuracy=acc, enemy=eval_task.spec.enemy if task.kind == "combat" else None, wall_s=time.time() - t0)
     (run_dir / "eval.json").write_text(json.dumps(res, indent=2))
     log.close()

@@ -8,10 +8,11 @@ Layout under a run directory::
         meta.json              # counters, config, versions; written last
       ckpt_000000456/
       ...
+      best/                    # the actor of the best periodic evaluation (--eval-every), if any
 
 A checkpoint directory is written under a temporary name and renamed into place, so a crash
 never leaves a half-written checkpoint under a final name; a directory without ``meta.json`` is
-ignored. The last ``keep`` checkpoints are kept.
+ignored. The last ``keep`` checkpoints are kept; ``best`` is never pruned and never resumed from.
 
 Named arrays come from ``tasks.flatten_named`` (pytree paths such as ``actor.params.Dense_0.kernel``);
 typed PRNG keys are stored as their uint32 key data.
@@ -31,6 +32,8 @@ import numpy as np
 from safetensors.numpy import load_file, save_file
 
 CKPT_DIR = "checkpoints"
+#: Name of the checkpoint holding the best periodically evaluated policy (``common.PeriodicEval``).
+BEST = "best"
 FORMAT_VERSION = 1
 _NAME = re.compile(r"^ckpt_(\d{9,})$")
 
@@ -72,11 +75,16 @@ def checkpoint_name(step: int) -> str:
     return f"ckpt_{int(step):09d}"
 
 
-def save_checkpoint(run_dir: str | Path, step: int, arrays: dict[str, np.ndarray], meta: dict[str, Any], keep: int = 3) -> Path:
-    """Write checkpoint ``step`` atomically and prune to the newest ``keep``. Returns its path."""
+def save_checkpoint(
+    run_dir: str | Path, step: int, arrays: dict[str, np.ndarray], meta: dict[str, Any], keep: int = 3, name: str | None = None
+) -> Path:
+    """Write checkpoint ``step`` atomically and prune to the newest ``keep``. Returns its path.
+
+    ``name`` (e.g. :data:`BEST`) writes a named checkpoint instead, replaced as a whole on each
+    save; named checkpoints are not counted, pruned or resumed from."""
     root = Path(run_dir) / CKPT_DIR
     root.mkdir(parents=True, exist_ok=True)
-    final = root / checkpoint_name(step)
+    final = root / (name or checkpoint_name(step))
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp_{final.name}_", dir=root))
     try:
         save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
@@ -88,11 +96,19 @@ def save_checkpoint(run_dir: str | Path, step: int, arrays: dict[str, np.ndarray
             f.flush()
             os.fsync(f.fileno())
         if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
+            # Move the old one aside first: a crash between the two renames leaves no
+            # checkpoint under the final name (ignored), never a half-written one.
+            stale = Path(tempfile.mkdtemp(prefix=f".old_{final.name}_", dir=root))
+            os.replace(final, stale / final.name)
+            os.replace(tmp, final)
+            shutil.rmtree(stale, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    if name is not None:
+        return final
     for old in list_checkpoints(run_dir)[:-keep] if keep > 0 else []:
         shutil.rmtree(old, ignore_errors=True)
     return final
@@ -117,9 +133,14 @@ def latest_checkpoint(run_dir: str | Path) -> Path | None:
 
 
 def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path:
-    """The newest complete checkpoint (``which`` None), or the one named by its step (``700``)
-    or its directory name (``ckpt_000000700``). :class:`CheckpointError` names what is kept."""
+    """The newest complete checkpoint (``which`` None), or the one named by its step (``700``),
+    its directory name (``ckpt_000000700``) or ``best``. :class:`CheckpointError` names what is kept."""
     kept = list_checkpoints(run_dir)
+    best = Path(run_dir) / CKPT_DIR / BEST
+    if which is not None and str(which).strip() == BEST:
+        if (best / "meta.json").is_file() and (best / "arrays.safetensors").is_file():
+            return best
+        raise CheckpointError(f"{run_dir}: no best checkpoint (it is kept by training with --eval-every > 0)")
     if not kept:
         raise CheckpointError(f"{run_dir}: no checkpoint found under {Path(run_dir) / CKPT_DIR}")
     if which is None:

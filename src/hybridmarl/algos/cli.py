@@ -112,7 +112,8 @@ class EvalConfig:
     """Run directory of the policy (its newest checkpoint)."""
     checkpoint: str | None = None
     """With --run-dir: evaluate this checkpoint instead of the newest, by its episode count
-    (``700``) or its name (``ckpt_000000700``); the run keeps its last ``keep_checkpoints``."""
+    (``700``) or its name (``ckpt_000000700``); the run keeps its last ``keep_checkpoints``.
+    ``best``: the policy of the run's best periodic evaluation (trained with ``--eval-every``)."""
     script: str | None = None
     """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D)."""
     env: str | None = None

@@ -99,7 +99,15 @@ class TrainConfig:
     """Combat enemy of the final evaluation. Default: the paper's cross-validation (a model
     learned from c fights w and vice versa, Section 5.1)."""
     eval_every: int = 0
-    """Also evaluate every this many training episodes (0: only at the end)."""
+    """Also evaluate the frozen policy every this many training episodes (0: only at the end),
+    on held-out *selection* start states (seed + 2) that the final evaluation (seed + 1) never
+    uses; results go to ``evals.csv`` and TensorBoard (``eval/``). The training log's win rate
+    is not a substitute: it is played by a policy that is still being updated."""
+    keep_best: bool = True
+    """With ``eval_every`` > 0: keep the policy of the best periodic evaluation (combat: W, then
+    R; traffic junction: failure rate, then return) as checkpoint ``best``; the final evaluation
+    then also reports it (``eval.json``'s ``best``), and ``hybridmarl eval --checkpoint best``
+    evaluates it. Selection uses its own states, so the final figures stay unbiased."""
     tensorboard: bool = True
     """Write TensorBoard event files under ``<run_dir>/tb``."""
     progress: bool = True
@@ -189,6 +197,70 @@ def check_finite(what: str, value: Any, where: str) -> None:
             f"{what} became NaN/inf at {where}; lower the learning rate or check the inputs "
             "(the last checkpoint is still valid: fix the cause and --resume)"
         )
+
+
+#: Seed offsets (added to ``--seed``) of the evaluation start states: the final evaluation's and
+#: the periodic selection evaluations'. Distinct, so that picking the best checkpoint on one set
+#: and reporting it on the other does not flatter it.
+FINAL_EVAL_SEED = 1
+SELECT_EVAL_SEED = 2
+
+
+def selection_key(result: dict[str, Any]) -> tuple[float, float]:
+    """Larger is better: combat (W, R); traffic junction (-failure rate, return)."""
+    if "W" in result:
+        return (float(result["W"]), float(result["R"]))
+    return (-float(result["failure_rate"]), float(result["R"]))
+
+
+class PeriodicEval:
+    """``--eval-every``/``--keep-best``: when due, evaluate the frozen policy on the selection
+    states, log a row to ``evals.csv`` and TensorBoard, and save the policy as checkpoint
+    ``best`` when it beats every earlier evaluation. Its state travels in checkpoint metadata
+    (``meta()``/``resume()``), so a resumed run keeps comparing against the same best."""
+
+    def __init__(self, cfg: TrainConfig, run_dir: Path, log: Any, episodes: int) -> None:
+        self.every, self.keep_best, self.run_dir, self.log = cfg.eval_every, cfg.keep_best, Path(run_dir), log
+        self.best_key: tuple[float, float] | None = None
+        self.best_episodes: int | None = None
+        self.best_result: dict[str, Any] | None = None
+        self._next = self._after(episodes)
+
+    def _after(self, episodes: int) -> int | None:
+        return (episodes // self.every + 1) * self.every if self.every > 0 else None
+
+    def resume(self, meta: dict[str, Any], episodes: int) -> None:
+        b = meta.get("best_eval")
+        if b:
+            self.best_key = (float(b["key"][0]), float(b["key"][1]))
+            self.best_episodes = int(b["episodes"])
+            self.best_result = dict(b["result"])
+        self._next = self._after(episodes)
+
+    def meta(self) -> dict[str, Any]:
+        if self.best_key is None:
+            return {}
+        return {"best_eval": {"key": list(self.best_key), "episodes": self.best_episodes, "result": self.best_result}}
+
+    def maybe_run(self, episodes: int, evaluate: Any, actor_arrays: Any, meta: dict[str, Any]) -> dict[str, Any] | None:
+        """Evaluate if due: ``evaluate(seed_offset) -> result``; ``actor_arrays() -> dict`` (the
+        arrays named ``actor.*`` that ``evaluate.load_policy`` reads). Returns the result or None."""
+        if self._next is None or episodes < self._next:
+            return None
+        self._next = self._after(episodes)
+        res = evaluate(SELECT_EVAL_SEED)
+        key = selection_key(res)
+        improved = self.best_key is None or key > self.best_key
+        if improved and self.keep_best:
+            from hybridmarl.algos.checkpoint import BEST, save_checkpoint
+
+            self.best_key, self.best_episodes = key, episodes
+            self.best_result = {k: v for k, v in res.items() if isinstance(v, int | float | list)}
+            save_checkpoint(self.run_dir, episodes, actor_arrays(), {**meta, "episodes": episodes, "selection": self.best_result}, name=BEST)
+        scalars = {k: v for k, v in res.items() if isinstance(v, float)}
+        self.log.evals.write([{"episodes": episodes, **scalars, "best": int(improved and self.keep_best)}])
+        self.log.scalars(episodes, scalars, prefix="eval")
+        return res
 
 
 class RunClock:

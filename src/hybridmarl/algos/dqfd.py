@@ -71,6 +71,8 @@ from hybridmarl.algos.checkpoint import (
     subtree,
 )
 from hybridmarl.algos.common import (
+    FINAL_EVAL_SEED,
+    PeriodicEval,
     RunClock,
     TrainConfig,
     TrainingDiverged,
@@ -612,16 +614,24 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         q=q, target=_variables(q), pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
         buffer=new_buffer(0), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma), next_target=cfg.target_update_every,
     )
+    periodic = PeriodicEval(cfg, run_dir, log, st.episodes)
     if ckpt is not None:
         arrays, meta = load_checkpoint(ckpt)
         st.restore(arrays, meta)
         clock.resume(meta)
+        periodic.resume(meta, st.episodes)
         log.resume_at(st.episodes)
         print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
     log.write_config(config_doc)
 
+    def ckpt_meta() -> dict[str, Any]:
+        return {**st.meta(), **clock.elapsed(), **periodic.meta(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}
+
     def save() -> None:
-        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), **clock.elapsed(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
+        save_checkpoint(run_dir, st.episodes, st.arrays(), ckpt_meta(), keep=cfg.keep_checkpoints)
+
+    def evaluate(variables: Any, seed_offset: int) -> dict[str, Any]:
+        return E.evaluate_task(eval_task, learner.module, variables, n=cfg.eval_episodes, seed=cfg.seed + seed_offset)
 
     def train_row(episodes: int, eps: float, terms: np.ndarray, chunk_s: float) -> dict[str, Any]:
         """One ``train.csv`` row (always the same keys: the CSV header is the first row's)."""
@@ -691,7 +701,6 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         lam_e = cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
         coeffs = np.asarray([1.0, cfg.lambda_nstep, lam_e, cfg.lambda_l2, cfg.margin])
         next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
-        next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else None
         terms = np.full(len(LOSS_NAMES), np.nan)
         while st.episodes < cfg.total_episodes:
             t0 = time.time()
@@ -721,10 +730,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
             log.scalars(st.episodes, row)
             log.episodes.write([{"episode": first_ep + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}} for i in range(n_new)])
             prog.update(st.episodes, f"{primary}@100 {recent.get(primary, float('nan')):.2f}  {secondary}@100 {recent.get(secondary, float('nan')):+.3f}  loss {terms[0]:.4f}")
-            if next_eval is not None and st.episodes >= next_eval:
-                res = E.evaluate_task(eval_task, learner.module, _variables(st.q), n=cfg.eval_episodes, seed=cfg.seed + 1)
-                log.scalars(st.episodes, {k: v for k, v in res.items() if isinstance(v, float)}, prefix="eval")
-                next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every
+            periodic.maybe_run(st.episodes, lambda off: evaluate(_variables(st.q), off), lambda: prefixed(flatten_named(st.q), "actor"), ckpt_meta())
             if st.episodes >= next_ckpt:
                 save()
                 next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
@@ -738,13 +744,18 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     save()
 
     # ---- Phase 4: evaluation ----------------------------------------------------------------------------
-    result = E.evaluate_task(eval_task, learner.module, _variables(st.q), n=cfg.eval_episodes, seed=cfg.seed + 1)
+    result = evaluate(_variables(st.q), FINAL_EVAL_SEED)
     result.update(enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, updates=st.updates, **clock.elapsed())
+    best = E.evaluate_best(run_dir, lambda v: evaluate(v, FINAL_EVAL_SEED))
+    if best is not None:
+        result["best"] = best
     (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
     log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
     plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{algo}: {spec.label()}, A^D = {cfg.demonstrator_name()}")
     log.close()
     print(_result_line(task, result))
+    if best is not None:
+        print(f"best checkpoint (episode {best['episodes']}, chosen on the selection states): " + _result_line(task, {**result, **best}).removeprefix("eval "))
     return 0
 
 

@@ -26,7 +26,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.algos import networks as nets
-from hybridmarl.algos.checkpoint import CheckpointError, find_checkpoint, load_checkpoint, subtree
+from hybridmarl.algos.checkpoint import (
+    BEST,
+    CheckpointError,
+    find_checkpoint,
+    load_checkpoint,
+    subtree,
+)
 from hybridmarl.algos.tasks import Task, TaskSpec, make_task, unflatten_named
 
 Z95 = 1.959963984540054
@@ -195,6 +201,19 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> Pol
     except (KeyError, ValueError) as e:
         raise CheckpointError(f"{ck}: actor does not fit the run's config ({e})") from None
     return PolicyBundle(run_dir, doc, spec, module, variables, meta)
+
+
+def evaluate_best(run_dir: str | Path, evaluate: Any) -> dict[str, Any] | None:
+    """The final evaluation of a run's ``best`` checkpoint (``--keep-best``), if it has one:
+    ``evaluate(variables) -> result`` plus the checkpoint's ``episodes`` and its ``selection``
+    result. None without a best checkpoint."""
+    try:
+        bundle = load_policy(run_dir, BEST)
+    except CheckpointError:
+        return None
+    res = evaluate(bundle.variables)
+    res.update(episodes=bundle.meta.get("episodes"), selection=bundle.meta.get("selection"))
+    return res
 
 
 def mirrored_enemy(bundle: PolicyBundle, spec: TaskSpec):

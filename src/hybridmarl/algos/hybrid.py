@@ -62,6 +62,8 @@ from hybridmarl.algos.checkpoint import (
     subtree,
 )
 from hybridmarl.algos.common import (
+    FINAL_EVAL_SEED,
+    PeriodicEval,
     RunClock,
     TrainConfig,
     TrainingDiverged,
@@ -575,16 +577,21 @@ def train(cfg: HybridConfig) -> int:
         "networks": {"actor_params": nets.num_params(actor.params), "critic_params": nets.num_params(critic.params)},
         "versions": {"jax": jax.__version__, "hybridmarl": _version()},
     }
+    periodic = PeriodicEval(cfg, run_dir, log, st.episodes)
     if ckpt is not None:
         arrays, meta = load_checkpoint(ckpt)
         st.restore(arrays, meta)
         clock.resume(meta)
+        periodic.resume(meta, st.episodes)
         log.resume_at(st.episodes)
         print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
     log.write_config(config_doc)
 
+    def ckpt_meta() -> dict[str, Any]:
+        return {**st.meta(), **clock.elapsed(), **periodic.meta(), "algo": ALGO, "config": config_doc["config"], "task": spec.to_dict()}
+
     def save() -> None:
-        save_checkpoint(run_dir, st.episodes, st.arrays(), {**st.meta(), **clock.elapsed(), "algo": ALGO, "config": config_doc["config"], "task": spec.to_dict()}, keep=cfg.keep_checkpoints)
+        save_checkpoint(run_dir, st.episodes, st.arrays(), ckpt_meta(), keep=cfg.keep_checkpoints)
 
     if st.phase == "pretrain":
         # ---- Phase 1: the demonstrator A^D (Section 3) ----------------------------------------
@@ -632,7 +639,13 @@ def train(cfg: HybridConfig) -> int:
     primary = "won" if task.kind == "combat" else "failed"
     secondary = "terminal_hp_reward" if task.kind == "combat" else "return"
     next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
-    next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every if cfg.eval_every > 0 else None
+
+    def evaluate(variables: Any, seed_offset: int) -> dict[str, Any]:
+        return E.evaluate_task(eval_task, learner.actor_mod, variables, n=cfg.eval_episodes, seed=cfg.seed + seed_offset)
+
+    def actor_arrays() -> dict[str, np.ndarray]:
+        return prefixed(flatten_named(st.actor), "actor")
+
     t_phase = time.time()
     steps_at_start = st.env_steps
     try:
@@ -685,10 +698,7 @@ def train(cfg: HybridConfig) -> int:
             ])
             status = f"{primary}@100 {recent.get(primary, float('nan')):.2f}  {secondary}@100 {recent.get(secondary, float('nan')):+.3f}  critic {st.critic_loss:.4f}"
             prog.update(st.episodes, status)
-            if next_eval is not None and st.episodes >= next_eval:
-                res = E.evaluate_task(eval_task, learner.actor_mod, _vars(st.actor), n=cfg.eval_episodes, seed=cfg.seed + 1)
-                log.scalars(st.episodes, {k: v for k, v in res.items() if isinstance(v, float)}, prefix="eval")
-                next_eval = (st.episodes // cfg.eval_every + 1) * cfg.eval_every
+            periodic.maybe_run(st.episodes, lambda off: evaluate(_vars(st.actor), off), actor_arrays, ckpt_meta())
             if st.episodes >= next_ckpt:
                 save()
                 next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
@@ -705,17 +715,22 @@ def train(cfg: HybridConfig) -> int:
     sps = (st.env_steps - steps_at_start) / max(train_s, 1e-9)
 
     # ---- Phase 4: evaluation (Section 5.1) --------------------------------------------------------
-    result = E.evaluate_task(eval_task, learner.actor_mod, _vars(st.actor), n=cfg.eval_episodes, seed=cfg.seed + 1)
+    result = evaluate(_vars(st.actor), FINAL_EVAL_SEED)
     result.update(
         enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes,
         env_steps_per_s=sps, **clock.elapsed(),
     )
+    best = E.evaluate_best(run_dir, lambda v: evaluate(v, FINAL_EVAL_SEED))
+    if best is not None:
+        result["best"] = best
     (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
     log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
     demo_level = st.demo_stats.get(secondary)
     plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{ALGO}: {spec.label()}, A^D = {cfg.demonstrator_name()}", baseline=demo_level)
     log.close()
     print(_result_line(task, result))
+    if best is not None:
+        print(f"best checkpoint (episode {best['episodes']}, chosen on the selection states): " + _result_line(task, {**result, **best}).removeprefix("eval "))
     return 0
 
 

@@ -5,6 +5,7 @@ Under the run directory:
 - ``config.json``: the full config (every hyper-parameter), the task and versions;
 - ``train.csv``: one row per training iteration (losses, BRD statistics, timings);
 - ``episodes.csv``: one row per finished training episode (its metrics);
+- ``evals.csv``: one row per periodic evaluation of the frozen policy (``--eval-every``);
 - ``tb/``: TensorBoard event files (the same scalars, plus the config as text);
 - ``curve.png``: the training curve (``algos.plots``).
 
@@ -78,6 +79,7 @@ class RunLogger:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.train = CsvLog(self.run_dir / "train.csv", "episodes")
         self.episodes = CsvLog(self.run_dir / "episodes.csv", "episode")
+        self.evals = CsvLog(self.run_dir / "evals.csv", "episodes")
         self.tb = None
         if tensorboard:
             from tensorboardX import SummaryWriter
@@ -96,6 +98,7 @@ class RunLogger:
     def resume_at(self, episodes: int) -> None:
         self.train.truncate_after(episodes)
         self.episodes.truncate_after(episodes)
+        self.evals.truncate_after(episodes)
 
     def scalars(self, step: int, values: dict[str, Any], prefix: str = "train") -> None:
         if self.tb is None:
