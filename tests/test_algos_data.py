@@ -196,6 +196,16 @@ def test_checkpoint_round_trip_and_pruning(tmp_path):
     assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.startswith(".")]
 
 
+def test_weight_average_is_the_running_mean():
+    from hybridmarl.algos.hybrid import _running_mean
+
+    snaps = [{"params": {"w": jnp.asarray([x, 2 * x])}, "batch_stats": {"m": jnp.asarray(-x)}} for x in (1.0, 2.0, 3.0, 6.0)]
+    avg = snaps[0]
+    for n, s in enumerate(snaps[1:], start=2):
+        avg = _running_mean(avg, s, jnp.asarray(n, jnp.float32))
+    np.testing.assert_allclose(avg["params"]["w"], [3.0, 6.0]) and np.testing.assert_allclose(avg["batch_stats"]["m"], -3.0)
+
+
 def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
     """--eval-every/--keep-best: due every k episodes, evaluated on the selection seed (never the
     final evaluation's), a row per evaluation, ``best`` replaced only on improvement (W, then R),
@@ -262,6 +272,7 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
         PRESETS["toy"]("traffic_junction"), demonstrator=str(data), progress=False, checkpoint_every=4,
         actor_buffer=actor_buffer, actor_target="best" if actor_buffer else "advantage",
         eval_every=0 if actor_buffer else 3,  # periodic evaluation and the best policy resume too
+        actor_average_from=2 if actor_buffer else None,  # and so does the actor's weight average
     )
     assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "straight"))) == 0
     assert train(dataclasses.replace(base, total_episodes=4, run_dir=str(tmp_path / "split"))) == 0
@@ -275,6 +286,15 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     if actor_buffer:
         assert int(a["labels.size"]) > 0 and a["labels.obs"].shape[0] == actor_buffer
+        # The weight average is checkpointed, resumed exactly, and is what the run exports.
+        from hybridmarl.algos.evaluate import load_policy
+
+        assert mb["average_count"] >= 2 and "actor_average.params.Dense_0.kernel" in b
+        assert not np.array_equal(b["actor_average.params.Dense_0.kernel"], b["actor.params.Dense_0.kernel"])
+        pol = load_policy(tmp_path / "split")
+        np.testing.assert_array_equal(pol.variables["params"]["Dense_0"]["kernel"], b["actor_average.params.Dense_0.kernel"])
+        final = json.loads((tmp_path / "straight" / "eval.json").read_text())
+        assert final["average_of"] == mb["average_count"] and "failure_rate" in final["last_actor"]
     else:
         straight, split = (C.find_checkpoint(tmp_path / r, "best") for r in ("straight", "split"))
         (ba, bma), (bb, bmb) = C.load_checkpoint(straight), C.load_checkpoint(split)

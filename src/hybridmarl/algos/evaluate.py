@@ -178,9 +178,10 @@ class PolicyBundle:
 
 
 def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> PolicyBundle:
-    """The actor of one checkpoint of a run (``config.json`` says how it was built): the newest,
-    or ``checkpoint``, given as its episode count (``700``) or its directory name
-    (``ckpt_000000700``) under ``run_dir/checkpoints``."""
+    """The policy of one checkpoint of a run (``config.json`` says how it was built): the newest,
+    or ``checkpoint``, given as its episode count (``700``), its directory name
+    (``ckpt_000000700``) under ``run_dir/checkpoints``, or ``best``. The policy is the actor, or
+    its weight average where the run keeps one (``actor_average.*``)."""
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
@@ -193,10 +194,12 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> Pol
     hidden = tuple(doc["config"].get("actor_hidden", nets.ACTOR_HIDDEN))
     module = nets.actor_module(task.num_actions, hidden)
     template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False))
+    # A run with weight averaging (hybrid ``actor_average_from``) exports the average.
+    prefix = "actor_average" if any(k.startswith("actor_average.") for k in arrays) else "actor"
     try:
         variables = {
-            "params": unflatten_named(template["params"], subtree(arrays, "actor.params")),
-            "batch_stats": unflatten_named(template["batch_stats"], subtree(arrays, "actor.batch_stats")),
+            "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),
+            "batch_stats": unflatten_named(template["batch_stats"], subtree(arrays, f"{prefix}.batch_stats")),
         }
     except (KeyError, ValueError) as e:
         raise CheckpointError(f"{ck}: actor does not fit the run's config ({e})") from None
