@@ -242,7 +242,7 @@ def _quick_lookahead(env: str) -> HybridConfig:
     Alg. 1's ã_g with 4 steps per env step (``actor_target="best"``, ``actor_steps=4``) for 700
     episodes, makes the run's policy the actor's weight average from episode 350 on
     (``actor_average_from=350``), and evaluates it every 50 episodes (``eval_every=50``). m5v5,
-    seeds 0/1/2, 26-31 CPU-min: W 0.71/0.65/0.73 against D's 0.44 on the same 100 states,
+    seeds 0/1/2, 27-31 CPU-min: W 0.75/0.65/0.73 against D's 0.44 on the same 100 states,
     where the last actor alone has 0.61/0.22/0.33. Traffic Junction keeps Eq. 8 and 1,500
     episodes (failure 0.176 against D's 0.959)."""
     base = dataclasses.replace(_quick(env), lookahead_steps=4)
