@@ -34,6 +34,9 @@ from safetensors.numpy import load_file, save_file
 CKPT_DIR = "checkpoints"
 #: Name of the checkpoint holding the best periodically evaluated policy (``common.PeriodicEval``).
 BEST = "best"
+#: Array prefix of the actor's weight average (hybrid ``actor_average_from``); a policy loaded
+#: from a checkpoint that has it is the average (``evaluate.load_policy``).
+AVERAGE_PREFIX = "actor_average"
 FORMAT_VERSION = 1
 _NAME = re.compile(r"^ckpt_(\d{9,})$")
 

@@ -221,9 +221,7 @@ class PeriodicEval:
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, log: Any, episodes: int) -> None:
         self.every, self.keep_best, self.run_dir, self.log = cfg.eval_every, cfg.keep_best, Path(run_dir), log
-        self.best_key: tuple[float, float] | None = None
-        self.best_episodes: int | None = None
-        self.best_result: dict[str, Any] | None = None
+        self.best_key: tuple[float, float] | None = None  # the best checkpoint's own meta has the rest
         self._next = self._after(episodes)
 
     def _after(self, episodes: int) -> int | None:
@@ -233,14 +231,12 @@ class PeriodicEval:
         b = meta.get("best_eval")
         if b:
             self.best_key = (float(b["key"][0]), float(b["key"][1]))
-            self.best_episodes = int(b["episodes"])
-            self.best_result = dict(b["result"])
         self._next = self._after(episodes)
 
     def meta(self) -> dict[str, Any]:
         if self.best_key is None:
             return {}
-        return {"best_eval": {"key": list(self.best_key), "episodes": self.best_episodes, "result": self.best_result}}
+        return {"best_eval": {"key": list(self.best_key)}}
 
     def maybe_run(self, episodes: int, evaluate: Any, actor_arrays: Any, meta: dict[str, Any]) -> dict[str, Any] | None:
         """Evaluate if due: ``evaluate(seed_offset) -> result``; ``actor_arrays() -> dict`` (the
@@ -254,9 +250,9 @@ class PeriodicEval:
         if improved and self.keep_best:
             from hybridmarl.algos.checkpoint import BEST, save_checkpoint
 
-            self.best_key, self.best_episodes = key, episodes
-            self.best_result = {k: v for k, v in res.items() if isinstance(v, int | float | list)}
-            save_checkpoint(self.run_dir, episodes, actor_arrays(), {**meta, "episodes": episodes, "selection": self.best_result}, name=BEST)
+            self.best_key = key
+            selection = {k: v for k, v in res.items() if isinstance(v, int | float | list)}
+            save_checkpoint(self.run_dir, episodes, actor_arrays(), {**meta, "episodes": episodes, "selection": selection}, name=BEST)
         scalars = {k: v for k, v in res.items() if isinstance(v, float)}
         self.log.evals.write([{"episodes": episodes, **scalars, "best": int(improved and self.keep_best)}])
         self.log.scalars(episodes, scalars, prefix="eval")

@@ -584,7 +584,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     from hybridmarl.algos import demos as D
     from hybridmarl.algos import evaluate as E
     from hybridmarl.algos import plots
-    from hybridmarl.algos.hybrid import _result_line
+    from hybridmarl.algos.hybrid import _best_line, _result_line
     from hybridmarl.algos.logger import Progress, RunLogger
 
     clock = RunClock()
@@ -755,7 +755,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     log.close()
     print(_result_line(task, result))
     if best is not None:
-        print(f"best checkpoint (episode {best['episodes']}, chosen on the selection states): " + _result_line(task, {**result, **best}).removeprefix("eval "))
+        print(_best_line(task, result, best))
     return 0
 
 

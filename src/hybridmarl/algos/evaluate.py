@@ -27,6 +27,7 @@ import numpy as np
 
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.checkpoint import (
+    AVERAGE_PREFIX,
     BEST,
     CheckpointError,
     find_checkpoint,
@@ -195,7 +196,7 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> Pol
     module = nets.actor_module(task.num_actions, hidden)
     template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False))
     # A run with weight averaging (hybrid ``actor_average_from``) exports the average.
-    prefix = "actor_average" if any(k.startswith("actor_average.") for k in arrays) else "actor"
+    prefix = AVERAGE_PREFIX if any(k.startswith(AVERAGE_PREFIX + ".") for k in arrays) else "actor"
     try:
         variables = {
             "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),

@@ -58,6 +58,7 @@ import numpy as np
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
 from hybridmarl.algos.checkpoint import (
+    AVERAGE_PREFIX,
     latest_checkpoint,
     load_checkpoint,
     prefixed,
@@ -552,11 +553,6 @@ class RunState:
             self.average = unflatten_named(_vars(self.actor), subtree(arrays, AVERAGE_PREFIX))
 
 
-#: Checkpoint arrays of the actor's weight average (``actor_average_from``); ``evaluate.load_policy``
-#: prefers them to ``actor.*`` when present.
-AVERAGE_PREFIX = "actor_average"
-
-
 @jax.jit
 def _running_mean(avg: Any, new: Any, count: jax.Array) -> Any:
     return jax.tree.map(lambda a, x: a + (x - a) / count.astype(a.dtype), avg, new)
@@ -776,7 +772,7 @@ def train(cfg: HybridConfig) -> int:
     if st.average_count:
         print("the last actor: " + _result_line(task, {**result, **result["last_actor"]}).removeprefix("eval "))
     if best is not None:
-        print(f"best checkpoint (episode {best['episodes']}, chosen on the selection states): " + _result_line(task, {**result, **best}).removeprefix("eval "))
+        print(_best_line(task, result, best))
     return 0
 
 
@@ -784,6 +780,11 @@ def _result_line(task: Task, r: dict[str, Any]) -> str:
     if task.kind == "combat":
         return f"eval vs {r['enemy']} ({r['n']} battles): W {r['W']:.2f} [{r['W_ci95'][0]:.2f}, {r['W_ci95'][1]:.2f}]  R {r['R']:+.3f} [{r['R_ci95'][0]:+.3f}, {r['R_ci95'][1]:+.3f}]"
     return f"eval ({r['n']} episodes): failure rate {r['failure_rate']:.3f} [{r['failure_rate_ci95'][0]:.3f}, {r['failure_rate_ci95'][1]:.3f}]  return {r['R']:+.2f}"
+
+
+def _best_line(task: Task, result: dict[str, Any], best: dict[str, Any]) -> str:
+    """The final evaluation's line for the ``best`` checkpoint (``--eval-every``)."""
+    return f"best checkpoint (episode {best['episodes']}, chosen on the selection states): " + _result_line(task, {**result, **best}).removeprefix("eval ")
 
 
 def _version() -> str:
