@@ -1,12 +1,14 @@
 """Where the time of one training step of the hybrid method goes (Phase 3 of ``algos.hybrid``).
 
 Times, for the given preset and scenario, each part of one Alg. 2 step for B games separately
-(all jitted, min over repeats): the one-step simulations + critic of Alg. 1 (``brd``), the actor's
+(all jitted, min over repeats): Alg. 1 with the preset's Q estimate (``brd``: the simulated steps,
+the continuation policy of a lookahead preset and the critic), the actor's
 Eq. 8 update (``actor_update``), the env step with resets (``env_step``), the whole compiled
 chunk (``chunk``, per step), the host-side episode assembly and buffer insertion per chunk
 (``host``), and one critic refit (``critic_fit``, per SGD step). Prints one JSON object.
 
     python bench/train_step.py [--scenario m5v5] [--preset quick] [--env combat] [--repeats 3]
+    python bench/train_step.py --preset quick-lookahead [--lookahead-policy demonstrator]
 """
 
 from __future__ import annotations
@@ -21,8 +23,8 @@ import jax.numpy as jnp
 import optax
 
 from hybridmarl.algos import networks as nets
-from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
-from hybridmarl.algos.hybrid import PRESETS, _static_cfg, _vars, build_learner
+from hybridmarl.algos.brd import best_response_dynamics
+from hybridmarl.algos.hybrid import PRESETS, _static_cfg, _vars, build_learner, continuation_policy
 from hybridmarl.algos.losses import actor_loss, advantages
 from hybridmarl.algos.rollout import EpisodeAssembler, ReplayBuffer, new_pool
 from hybridmarl.algos.tasks import make_task
@@ -46,8 +48,11 @@ def main() -> None:
     p.add_argument("--scenario", default="m5v5")
     p.add_argument("--preset", default="quick")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--lookahead-policy", choices=["start", "actor", "demonstrator"], help="override the preset's lookahead_policy")
     args = p.parse_args()
     cfg = dataclasses.replace(PRESETS[args.preset](args.env), scenario=args.scenario)
+    if args.lookahead_policy:
+        cfg = dataclasses.replace(cfg, lookahead_policy=args.lookahead_policy)
     task = make_task(cfg.task_spec())
     learner = build_learner(task, _static_cfg(cfg), cfg.demonstrator_name())
     b = cfg.num_envs
@@ -58,7 +63,9 @@ def main() -> None:
     for _ in range(2):
         pool, _ = learner.demo_chunk(pool, None)
     cv = _vars(critic)
-    q_fn = make_q_fn(task.lookahead, learner.value_fn(cv), cfg.gamma)
+    # The preset's own Q estimate (lookahead steps and continuation policy), as in the chunk.
+    lookahead = cfg.lookahead_steps if cfg.lookahead_steps > 0 else 1_000_000
+    q_fn = learner.brd_q_fn(actor, cv, None, gamma=cfg.gamma, lookahead=lookahead, continuation=continuation_policy(cfg))
     keys = jax.random.split(jax.random.key(3), b)
     legal = jax.vmap(task.avail)(pool.states)
 
@@ -103,6 +110,7 @@ def main() -> None:
     per_step = t_chunk / cfg.chunk_steps
     doc = {
         "env": args.env, "scenario": args.scenario if args.env == "combat" else None, "preset": args.preset,
+        "lookahead_steps": cfg.lookahead_steps, "lookahead_policy": continuation_policy(cfg),
         "batch": b, "agents": task.num_agents, "actions": task.num_actions, "chunk_steps": cfg.chunk_steps,
         "brd_visits": int(res.visits), "brd_update_sweeps": int(res.sweeps),
         "seconds": {

@@ -181,3 +181,46 @@ def test_act_before_update_plays_the_pre_update_actor():
             assert any(bool(jnp.any(a != b)) for a, b in zip(jax.tree.leaves(actor.params), jax.tree.leaves(new_actor.params), strict=True))
     for a, b in zip(jax.tree.leaves(pools[0]), jax.tree.leaves(pools[1]), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_lookahead_continuation_is_the_chosen_policy():
+    """``brd_q_fn`` with K = 3 steps and the demonstrator continuing equals r_0 + λ r_1 + λ² r_2
+    + λ³ V(s_3) of (candidate, then A^D) played step by step through the environment;
+    ``lookahead_policy`` picks who continues (``start`` follows ``brd_start``)."""
+    import dataclasses as dc
+
+    from hybridmarl.algos.hybrid import PRESETS, build_learner, continuation_policy
+    from hybridmarl.algos.rollout import new_pool
+
+    task = make_task(TaskSpec(env="combat", scenario="m3v3", enemy="attack-weakest"))
+    cfg = PRESETS["toy"]("combat")
+    assert continuation_policy(cfg) == cfg.brd_start == "actor"
+    assert continuation_policy(dc.replace(cfg, brd_start="demonstrator")) == "demonstrator"
+    assert continuation_policy(dc.replace(cfg, lookahead_policy="demonstrator")) == "demonstrator"
+    learner = build_learner(task, cfg, "attack-closest")
+    actor = nets.init_net(learner.actor_mod, jax.random.key(1), task.obs_dim, learner.actor_tx)
+    critic = nets.init_net(learner.critic_mod, jax.random.key(2), task.critic_dim, learner.critic_tx)
+    cv = {"params": critic.params, "batch_stats": critic.batch_stats}
+    pool = new_pool(task, jax.random.key(3), 2)
+    legal = np.asarray(jax.vmap(task.avail)(pool.states))
+    cand = jnp.asarray(np.stack([legal.argmax(-1), legal.shape[-1] - 1 - legal[..., ::-1].argmax(-1)], 1))  # [B, 2, N]
+    keys = jax.random.split(jax.random.key(4), 2)
+    gamma, k_steps = 0.9, 3
+    q = np.asarray(jax.jit(learner.brd_q_fn(actor, cv, None, gamma=gamma, lookahead=k_steps, continuation="demonstrator"))(keys, pool.states, cand))
+
+    @jax.jit
+    def manual(key, state, acts):
+        ret, disc, done = 0.0, 1.0, False
+        for _ in range(k_steps):
+            _, nxt, r, d, _ = task.step(key, state, acts)
+            ret, disc = ret + jnp.where(done, 0.0, disc * r), jnp.where(done, disc, disc * gamma)
+            state = jax.tree.map(lambda a, b, done=done: jnp.where(done, b, a), nxt, state)
+            done = done | d
+            acts = learner.demo_script_fn(key, state).astype(jnp.int32)
+        v = learner.value_fn(cv)(jax.tree.map(lambda x: x[None], state))[0]
+        return ret + disc * jnp.where(done, 0.0, v)
+
+    for g in range(2):
+        for k in range(2):
+            expected = float(manual(keys[g], jax.tree.map(lambda x, g=g: x[g], pool.states), cand[g, k]))
+            np.testing.assert_allclose(q[g, k], expected, rtol=1e-5, atol=1e-6)

@@ -265,6 +265,7 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
     ``actor_buffer`` the actor learns between chunks from the buffer of Alg. 1 labels, which the
     checkpoint must carry too."""
     from hybridmarl.algos.checkpoint import latest_checkpoint, load_checkpoint
+    from hybridmarl.algos.evaluate import load_policy
     from hybridmarl.algos.hybrid import PRESETS, train
 
     data = D.save_dataset(tj_dataset, tmp_path / "tj.safetensors")
@@ -287,15 +288,18 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
     if actor_buffer:
         assert int(a["labels.size"]) > 0 and a["labels.obs"].shape[0] == actor_buffer
         # The weight average is checkpointed, resumed exactly, and is what the run exports.
-        from hybridmarl.algos.evaluate import load_policy
-
         assert mb["average_count"] >= 2 and "actor_average.params.Dense_0.kernel" in b
         assert not np.array_equal(b["actor_average.params.Dense_0.kernel"], b["actor.params.Dense_0.kernel"])
         pol = load_policy(tmp_path / "split")
         np.testing.assert_array_equal(pol.variables["params"]["Dense_0"]["kernel"], b["actor_average.params.Dense_0.kernel"])
+        last = load_policy(tmp_path / "split", policy="last")  # ``hybridmarl eval --policy last``
+        assert (pol.weights, last.weights) == ("average", "last")
+        np.testing.assert_array_equal(last.variables["params"]["Dense_0"]["kernel"], b["actor.params.Dense_0.kernel"])
         final = json.loads((tmp_path / "straight" / "eval.json").read_text())
         assert final["average_of"] == mb["average_count"] and "failure_rate" in final["last_actor"]
     else:
+        with pytest.raises(C.CheckpointError, match="no weight average"):
+            load_policy(tmp_path / "split", policy="average")
         straight, split = (C.find_checkpoint(tmp_path / r, "best") for r in ("straight", "split"))
         (ba, bma), (bb, bmb) = C.load_checkpoint(straight), C.load_checkpoint(split)
         assert bma["episodes"] == bmb["episodes"] and set(ba) == set(bb) and all(k.startswith("actor.") for k in ba)

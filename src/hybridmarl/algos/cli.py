@@ -31,6 +31,7 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import tyro
 
@@ -114,6 +115,10 @@ class EvalConfig:
     """With --run-dir: evaluate this checkpoint instead of the newest, by its episode count
     (``700``) or its name (``ckpt_000000700``); the run keeps its last ``keep_checkpoints``.
     ``best``: the policy of the run's best periodic evaluation (trained with ``--eval-every``)."""
+    policy: Literal["auto", "average", "last"] = "auto"
+    """With --run-dir: which weights of the checkpoint to play. ``auto``: the run's policy (the
+    actor's weight average where the run keeps one, ``--actor-average-from``, else the actor);
+    ``average``: the average (exit 2 without one); ``last``: the last actor itself."""
     script: str | None = None
     """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D)."""
     env: str | None = None
@@ -159,7 +164,7 @@ def run_eval(cfg: EvalConfig) -> int:
             raise errors[0]("give exactly one of --run-dir (a trained policy) or --script")
         bundle = None
         if cfg.run_dir is not None:
-            bundle = E.load_policy(cfg.run_dir, cfg.checkpoint)
+            bundle = E.load_policy(cfg.run_dir, cfg.checkpoint, cfg.policy)
             spec = bundle.spec
             trained_from = bundle.config.get("config", {}).get("demonstrator_name", "")
         else:
@@ -216,6 +221,7 @@ def run_eval(cfg: EvalConfig) -> int:
     )
     if bundle is not None:
         res["episodes"] = bundle.meta.get("episodes")  # of the checkpoint evaluated
+        res["weights"] = bundle.weights
     text = json.dumps(res, sort_keys=True)
     if cfg.out:
         from hybridmarl.algos.checkpoint import write_json_atomic

@@ -165,24 +165,35 @@ def summarize(task: Task, ep: dict[str, np.ndarray]) -> dict[str, Any]:
 class PolicyBundle:
     """A trained actor loaded from a run directory."""
 
-    def __init__(self, run_dir: Path, config: dict[str, Any], spec: TaskSpec, module: nets.MLP, variables: dict, meta: dict):
+    def __init__(self, run_dir: Path, config: dict[str, Any], spec: TaskSpec, module: nets.MLP, variables: dict, meta: dict, weights: str = "last"):
         self.run_dir = run_dir
         self.config = config
         self.spec = spec
         self.module = module
         self.variables = variables
         self.meta = meta
+        self.weights = weights
+        """``last`` (the actor) or ``average`` (its weight average)."""
 
     @property
     def demonstrator(self) -> str:
         return str(self.config.get("config", {}).get("demonstrator_name", self.config.get("config", {}).get("demonstrator", "")))
 
 
-def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> PolicyBundle:
+#: Which weights of a checkpoint ``load_policy`` reads: the run's policy (``auto``: the weight
+#: average where the run keeps one, else the actor), the ``average`` (an error without one) or
+#: the ``last`` actor.
+POLICY_CHOICES = ("auto", "average", "last")
+
+
+def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, policy: str = "auto") -> PolicyBundle:
     """The policy of one checkpoint of a run (``config.json`` says how it was built): the newest,
     or ``checkpoint``, given as its episode count (``700``), its directory name
-    (``ckpt_000000700``) under ``run_dir/checkpoints``, or ``best``. The policy is the actor, or
-    its weight average where the run keeps one (``actor_average.*``)."""
+    (``ckpt_000000700``) under ``run_dir/checkpoints``, or ``best``. ``policy`` (see
+    ``POLICY_CHOICES``) picks the actor or its weight average (``actor_average.*``, hybrid
+    ``actor_average_from``); by default the average where the run keeps one."""
+    if policy not in POLICY_CHOICES:
+        raise ValueError(f"policy must be one of {', '.join(POLICY_CHOICES)}, not {policy!r}")
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
@@ -196,7 +207,10 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> Pol
     module = nets.actor_module(task.num_actions, hidden)
     template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False))
     # A run with weight averaging (hybrid ``actor_average_from``) exports the average.
-    prefix = AVERAGE_PREFIX if any(k.startswith(AVERAGE_PREFIX + ".") for k in arrays) else "actor"
+    has_average = any(k.startswith(AVERAGE_PREFIX + ".") for k in arrays)
+    if policy == "average" and not has_average:
+        raise CheckpointError(f"{ck}: holds no weight average (the run was trained without --actor-average-from, or before its first average)")
+    prefix = AVERAGE_PREFIX if has_average and policy != "last" else "actor"
     try:
         variables = {
             "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),
@@ -204,7 +218,7 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None) -> Pol
         }
     except (KeyError, ValueError) as e:
         raise CheckpointError(f"{ck}: actor does not fit the run's config ({e})") from None
-    return PolicyBundle(run_dir, doc, spec, module, variables, meta)
+    return PolicyBundle(run_dir, doc, spec, module, variables, meta, "average" if prefix == AVERAGE_PREFIX else "last")
 
 
 def evaluate_best(run_dir: str | Path, evaluate: Any) -> dict[str, Any] | None:

@@ -129,6 +129,13 @@ class HybridConfig(TrainConfig):
     one Alg. 1 starts from, see ``brd_start``) plays K - 1 more steps before the critic
     bootstraps. 0: simulate to the end of the episode, i.e. the exact Q of the continuation
     policy (the paper's "ideal condition" of Eq. 6); the critic is then unused and not fitted."""
+    lookahead_policy: Literal["start", "actor", "demonstrator"] = "start"
+    """Who plays the K - 1 continuation steps of ``lookahead_steps`` (and the simulation to the
+    end with ``lookahead_steps=0``): ``start`` (the default) the policy Alg. 1 starts from
+    (``brd_start``), or explicitly the current ``actor`` or the ``demonstrator`` A^D. With the
+    actor, its network runs on every simulated state, which is most of the cost of a lookahead
+    step (``python bench/train_step.py --preset quick-lookahead``); a script demonstrator costs
+    a fraction of that."""
     clone_script: bool = False
     """Paper-exact A^D for a script demonstrator: record ``demo_observations`` from it and use
     its behavioural clone θ^D (Section 3) instead of the script itself."""
@@ -309,7 +316,7 @@ class Learner:
         self.train_chunk = jax.jit(
             functools.partial(
                 self._train_chunk, steps=cfg.chunk_steps, gamma=cfg.gamma,
-                iterations=cfg.brd_iterations, start=cfg.brd_start,
+                iterations=cfg.brd_iterations, start=cfg.brd_start, continuation=continuation_policy(cfg),
                 lookahead=cfg.lookahead_steps if cfg.lookahead_steps > 0 else 1_000_000,
                 actor_steps=cfg.actor_steps, target=cfg.actor_target, online=cfg.actor_buffer <= 0,
                 min_gain=cfg.brd_min_gain, act_before_update=cfg.act_before_update,
@@ -377,26 +384,31 @@ class Learner:
         return actor, total / jnp.maximum(num_steps, 1).astype(jnp.float32)
 
     # Phase 3, K steps of Alg. 2 for all B games.
-    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float, act_before_update: bool):
-        task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
+    def brd_q_fn(self, actor: Any, critic_vars: Any, clone_vars: Any, *, gamma: float, lookahead: int, continuation: str):
+        """Alg. 1's Q estimate for B games: ``lookahead`` simulated steps (1: Eq. 2's one step;
+        1,000,000: to the end, critic unused), the later ones played by ``continuation``
+        (``actor``: the actor's legal argmax; ``demonstrator``: A^D, the script or the clone)."""
+        task, mod = self.task, self.actor_mod
 
         def step_fn(key, state, actions):
             _, s2, r, d, _ = task.step(key, state, actions)
             return r, s2, d
 
-        def act(actor, key, states, obs, legal):
-            def continuation(keys, flat_states):
-                """The policy that plays on after the first simulated step (lookahead_steps != 1)."""
-                fobs = jax.vmap(task.observe)(flat_states)
-                flegal = jax.vmap(task.avail)(flat_states)
-                if start == "actor":
-                    return nets.actor_actions(mod, actor, fobs, flegal)
-                if self.demo_script_fn is not None:
-                    return jax.vmap(self.demo_script_fn)(keys, flat_states).astype(jnp.int32)
-                return nets.actor_actions(mod, clone_vars, fobs, flegal)
+        def policy(keys, flat_states):
+            if continuation == "demonstrator" and self.demo_script_fn is not None:
+                return jax.vmap(self.demo_script_fn)(keys, flat_states).astype(jnp.int32)
+            fobs = jax.vmap(task.observe)(flat_states)
+            flegal = jax.vmap(task.avail)(flat_states)
+            return nets.actor_actions(mod, actor if continuation == "actor" else clone_vars, fobs, flegal)
 
-            value_fn = self.value_fn(critic_vars) if lookahead < 1_000_000 else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
-            q_fn = make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, step_fn=step_fn, policy_fn=continuation)
+        value_fn = self.value_fn(critic_vars) if lookahead < 1_000_000 else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
+        return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, step_fn=step_fn, policy_fn=policy)
+
+    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float, act_before_update: bool):
+        task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
+
+        def act(actor, key, states, obs, legal):
+            q_fn = self.brd_q_fn(actor, critic_vars, clone_vars, gamma=gamma, lookahead=lookahead, continuation=continuation)
             k_demo, k_sim = jax.random.split(key)
             n, na = legal.shape[1], legal.shape[2]
             a_actor = nets.actor_actions(mod, actor, obs, legal)
@@ -451,6 +463,12 @@ class Learner:
         return pool, actor, out
 
 
+def continuation_policy(cfg: HybridConfig) -> str:
+    """Who plays a lookahead's continuation steps: ``lookahead_policy``, where ``start`` means
+    the policy Alg. 1 starts from."""
+    return cfg.brd_start if cfg.lookahead_policy == "start" else cfg.lookahead_policy
+
+
 @functools.lru_cache(maxsize=8)
 def build_learner(task: Task, cfg: HybridConfig, demo_script: str | None) -> Learner:
     # Only fields that shape the compiled functions matter; the rest of cfg is normalised away.
@@ -462,7 +480,7 @@ def _static_cfg(cfg: HybridConfig) -> HybridConfig:
     keep = {
         "num_envs", "chunk_steps", "gamma", "brd_iterations", "brd_start", "lookahead_steps", "optimizer", "actor_lr",
         "critic_lr", "momentum", "critic_batch_size", "actor_hidden", "critic_hidden", "actor_steps", "actor_target", "actor_buffer", "actor_batch_size", "brd_min_gain",
-        "act_before_update",
+        "act_before_update", "lookahead_policy",
     }
     return HybridConfig(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name in keep})
 
