@@ -24,7 +24,14 @@ import optax
 
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.brd import best_response_dynamics
-from hybridmarl.algos.hybrid import PRESETS, _static_cfg, _vars, build_learner, continuation_policy
+from hybridmarl.algos.hybrid import (
+    PRESETS,
+    _static_cfg,
+    _vars,
+    build_learner,
+    continuation_policy,
+    simulated_steps,
+)
 from hybridmarl.algos.losses import actor_loss, advantages
 from hybridmarl.algos.rollout import EpisodeAssembler, ReplayBuffer, new_pool
 from hybridmarl.algos.tasks import make_task
@@ -64,8 +71,7 @@ def main() -> None:
         pool, _ = learner.demo_chunk(pool, None)
     cv = _vars(critic)
     # The preset's own Q estimate (lookahead steps and continuation policy), as in the chunk.
-    lookahead = cfg.lookahead_steps if cfg.lookahead_steps > 0 else 1_000_000
-    q_fn = learner.brd_q_fn(actor, cv, None, gamma=cfg.gamma, lookahead=lookahead, continuation=continuation_policy(cfg))
+    q_fn = learner.brd_q_fn(actor, cv, None, gamma=cfg.gamma, lookahead=simulated_steps(cfg), continuation=continuation_policy(cfg))
     keys = jax.random.split(jax.random.key(3), b)
     legal = jax.vmap(task.avail)(pool.states)
 

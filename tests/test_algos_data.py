@@ -203,7 +203,8 @@ def test_weight_average_is_the_running_mean():
     avg = snaps[0]
     for n, s in enumerate(snaps[1:], start=2):
         avg = _running_mean(avg, s, jnp.asarray(n, jnp.float32))
-    np.testing.assert_allclose(avg["params"]["w"], [3.0, 6.0]) and np.testing.assert_allclose(avg["batch_stats"]["m"], -3.0)
+    np.testing.assert_allclose(avg["params"]["w"], [3.0, 6.0])
+    np.testing.assert_allclose(avg["batch_stats"]["m"], -3.0)
 
 
 def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):

@@ -14,7 +14,7 @@
              finished episodes push (s_t, V(s_t)) into B and, every E_Update episodes, the critic
              is refitted on B (Eq. 3);
     Phase 4  evaluation (``algos.evaluate``: 100 battles, legal argmax, W and R with 95% CIs)
-             of the last actor and, with ``--eval-every``, of the best frozen actor of the
+             of the run's policy (the last actor, or its weight average) and, with ``--eval-every``, of the best frozen actor of the
              periodic evaluations (chosen on other start states; ``common.PeriodicEval``).
 
 Where Alg. 1 starts (``--brd-start``). Section 4.3: "the actor networks can also be used to
@@ -322,7 +322,7 @@ class Learner:
             functools.partial(
                 self._train_chunk, steps=cfg.chunk_steps, gamma=cfg.gamma,
                 iterations=cfg.brd_iterations, start=cfg.brd_start, continuation=continuation_policy(cfg),
-                lookahead=cfg.lookahead_steps if cfg.lookahead_steps > 0 else 1_000_000,
+                lookahead=simulated_steps(cfg),
                 actor_steps=cfg.actor_steps, target=cfg.actor_target, online=cfg.actor_buffer <= 0,
                 min_gain=cfg.brd_min_gain, act_before_update=cfg.act_before_update,
             )
@@ -391,7 +391,7 @@ class Learner:
     # Phase 3, K steps of Alg. 2 for all B games.
     def brd_q_fn(self, actor: Any, critic_vars: Any, clone_vars: Any, *, gamma: float, lookahead: int, continuation: str):
         """Alg. 1's Q estimate for B games: ``lookahead`` simulated steps (1: Eq. 2's one step;
-        1,000,000: to the end, critic unused), the later ones played by ``continuation``
+        ``TO_THE_END``: to the end, critic unused), the later ones played by ``continuation``
         (``actor``: the actor's legal argmax; ``demonstrator``: A^D, the script or the clone)."""
         task, mod = self.task, self.actor_mod
 
@@ -406,7 +406,7 @@ class Learner:
             flegal = jax.vmap(task.avail)(flat_states)
             return nets.actor_actions(mod, actor if continuation == "actor" else clone_vars, fobs, flegal)
 
-        value_fn = self.value_fn(critic_vars) if lookahead < 1_000_000 else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
+        value_fn = self.value_fn(critic_vars) if lookahead < TO_THE_END else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
         return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, step_fn=step_fn, policy_fn=policy)
 
     def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float, act_before_update: bool):
@@ -466,6 +466,16 @@ class Learner:
 
         pool, actor, out = pool_steps(task, act, pool, actor, steps)
         return pool, actor, out
+
+
+#: Simulated steps that stand for "to the end of the episode" (``lookahead_steps=0``); the Q
+#: loop stops early once every simulated game has ended.
+TO_THE_END = 1_000_000
+
+
+def simulated_steps(cfg: HybridConfig) -> int:
+    """Steps of Alg. 1's Q simulation: ``lookahead_steps``, where 0 means ``TO_THE_END``."""
+    return cfg.lookahead_steps if cfg.lookahead_steps > 0 else TO_THE_END
 
 
 def continuation_policy(cfg: HybridConfig) -> str:
