@@ -12,12 +12,14 @@ JSON object::
         "call_s_median": ..., "visits": ..., "sweeps": ..., "s_per_visit": ...,
         "s_per_agent_sweep": ..., "us_per_simulated_step": ...}, ...]}
 
-``visits`` = batched Q evaluations in one call (= agents visited over all sweeps, including the
-final evaluation sweep); each visit simulates B x A one-step transitions and evaluates the
-critic on them. Linear cost in N shows as a flat ``s_per_agent_sweep`` for a fixed number of
+``visits`` = calls of the batched Q estimate in one call of Alg. 1, each on ``--work-batch``
+games (default 0: all B, the dense schedule; every game has all N agents deciding here, so this
+is the (game, agent) visits over all sweeps, including the final evaluation sweep, divided by
+B); each call simulates (work batch) x A one-step transitions and evaluates the critic on them.
+``agent_visits`` = the (game, agent) visits Alg. 1 needed. Linear cost in N shows as a flat ``s_per_agent_sweep`` for a fixed number of
 actions; ``us_per_simulated_step`` divides out the actions too.
 
-    python bench/brd.py [--batch 32] [--scenarios m5v5 m18v20 m30v30] [--repeats 3] [--iterations 7]
+    python bench/brd.py [--batch 32] [--scenarios m5v5 m18v20 m30v30] [--repeats 3] [--iterations 7] [--work-batch 0]
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
 from hybridmarl.algos.tasks import TaskSpec, make_task
 
 
-def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 0) -> dict:
+def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 0, work_batch: int = 0) -> dict:
     task = make_task(TaskSpec(env="combat", scenario=scenario, enemy="attack-weakest"))
     critic = nets.critic_module()
     variables = critic.init(jax.random.key(seed), jnp.zeros((2, task.critic_dim)), train=False)
@@ -50,7 +52,7 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
     def call(keys, states):
         legal = jax.vmap(task.avail)(states)
         a0 = jax.vmap(demo)(keys, states)
-        return best_response_dynamics(q_fn, keys, states, a0, legal, iterations)
+        return best_response_dynamics(q_fn, keys, states, a0, legal, iterations, work_batch=work_batch or None)
 
     keys = jax.random.split(jax.random.key(seed + 1), batch)
     _, states = jax.vmap(task.reset)(keys)
@@ -65,7 +67,8 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
     visits = int(res.visits)
     n, a = task.num_agents, task.num_actions
     best = min(times)
-    sweeps_total = visits / n
+    per_call = batch if work_batch <= 0 else min(work_batch, batch)
+    sweeps_total = int(res.evaluated) / (batch * n)
     return {
         "scenario": scenario,
         "agents": n,
@@ -74,11 +77,13 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
         "compile_s": round(compile_s, 3),
         "call_s_min": round(best, 4),
         "call_s_median": round(statistics.median(times), 4),
+        "work_batch": per_call,
         "visits": visits,
+        "agent_visits": int(res.evaluated),
         "update_sweeps": int(res.sweeps),
         "s_per_visit": round(best / visits, 6),
         "s_per_agent_sweep": round(best / max(sweeps_total, 1e-9) / n, 6),
-        "us_per_simulated_step": round(1e6 * best / (visits * batch * a), 3),
+        "us_per_simulated_step": round(1e6 * best / (visits * per_call * a), 3),
         "mean_changes_per_game": float(jnp.mean(res.changes)),
     }
 
@@ -90,12 +95,14 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--iterations", type=int, default=7)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--work-batch", type=int, default=0, help="games per Q call inside Alg. 1 (0: all)")
     args = p.parse_args()
     out = {
         "batch": args.batch,
         "iterations": args.iterations,
+        "work_batch": args.work_batch,
         "device": str(jax.devices()[0]),
-        "results": [bench(s, args.batch, args.repeats, args.iterations, args.seed) for s in args.scenarios],
+        "results": [bench(s, args.batch, args.repeats, args.iterations, args.seed, args.work_batch) for s in args.scenarios],
     }
     print(json.dumps(out, indent=2))
 

@@ -55,9 +55,12 @@ def main() -> None:
     p.add_argument("--scenario", default="m5v5")
     p.add_argument("--preset", default="quick")
     p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--work-batch", type=int, help="override the preset's brd_work_batch (0: all games per call)")
     p.add_argument("--lookahead-policy", choices=["start", "actor", "demonstrator"], help="override the preset's lookahead_policy")
     args = p.parse_args()
     cfg = dataclasses.replace(PRESETS[args.preset](args.env), scenario=args.scenario)
+    if args.work_batch is not None:
+        cfg = dataclasses.replace(cfg, brd_work_batch=args.work_batch)
     if args.lookahead_policy:
         cfg = dataclasses.replace(cfg, lookahead_policy=args.lookahead_policy)
     task = make_task(cfg.task_spec())
@@ -78,7 +81,7 @@ def main() -> None:
     @jax.jit
     def brd(states, obs, legal):
         a0 = nets.actor_actions(learner.actor_mod, actor, obs, legal)
-        return best_response_dynamics(q_fn, keys, states, a0, legal, cfg.brd_iterations)
+        return best_response_dynamics(q_fn, keys, states, a0, legal, cfg.brd_iterations, work_batch=cfg.brd_work_batch or None)
 
     res = brd(pool.states, pool.obs, legal)
     t_brd, c_brd = timed(brd, pool.states, pool.obs, legal, repeats=args.repeats)
@@ -118,7 +121,8 @@ def main() -> None:
         "env": args.env, "scenario": args.scenario if args.env == "combat" else None, "preset": args.preset,
         "lookahead_steps": cfg.lookahead_steps, "lookahead_policy": continuation_policy(cfg),
         "batch": b, "agents": task.num_agents, "actions": task.num_actions, "chunk_steps": cfg.chunk_steps,
-        "brd_visits": int(res.visits), "brd_update_sweeps": int(res.sweeps),
+        "brd_work_batch": cfg.brd_work_batch, "brd_calls": int(res.visits), "brd_agent_visits": int(res.evaluated),
+        "brd_update_sweeps": int(res.sweeps),
         "seconds": {
             "brd": round(t_brd, 5), "actor_update": round(t_upd, 5), "env_step": round(t_env, 5),
             "chunk_per_step": round(per_step, 5), "host_per_chunk": round(t_host, 5),

@@ -8,6 +8,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from hybridmarl.algos import networks as nets
 from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
@@ -31,8 +32,8 @@ def _brute_q(w, joint):
     return float(np.einsum("ia,iajc,jc->", oh, w, oh))
 
 
-def _run(w, a0, legal, iterations=7):
-    fn = jax.jit(lambda k, s, a, lg: best_response_dynamics(_pairwise_q(w), k, s, a, lg, iterations))
+def _run(w, a0, legal, iterations=7, work_batch=None):
+    fn = jax.jit(lambda k, s, a, lg: best_response_dynamics(_pairwise_q(w), k, s, a, lg, iterations, work_batch=work_batch))
     return fn(jax.random.split(jax.random.key(0), B), jnp.asarray(w), a0, legal)
 
 
@@ -46,11 +47,13 @@ def _toy(seed=0):
     return w, jnp.asarray(legal)
 
 
-def test_q_never_decreases_and_reaches_a_local_optimum():
+@pytest.mark.parametrize("work_batch", [None, 3, 1])
+def test_q_never_decreases_and_reaches_a_local_optimum(work_batch):
+    """Also with the games simulated a few at a time (``work_batch`` 3: a padded second pass)."""
     for seed in range(3):
         w, legal = _toy(seed)
         a0 = jnp.zeros((B, N), jnp.int32).at[1, 2].set(0)  # game 1 starts from an illegal action
-        res = _run(w, a0, legal)
+        res = _run(w, a0, legal, work_batch=work_batch)
         tr = np.asarray(res.trace)
         acts = np.asarray(res.actions)
         lg = np.asarray(legal)
@@ -74,6 +77,33 @@ def test_q_never_decreases_and_reaches_a_local_optimum():
                         assert abs(float(res.q[b, g, a]) - q) < 1e-4
         assert int(acts[0, 1]) == 1  # the only legal action
         assert bool(res.q_valid[0, 0]) and not bool(res.q_valid[0, 1])
+
+
+def test_work_batch_does_not_change_the_result_and_skips_finished_games():
+    """The compacted schedule gives the same Ã, table and counts for any ``work_batch``; only the
+    visits Alg. 1 needs are simulated: a game without a choice costs nothing, a game with one
+    decider costs one visit, and converged games are not swept again."""
+    w, legal = _toy(2)
+    legal = np.asarray(legal).copy()
+    legal[1] = False
+    legal[1, :, 0] = True  # game 1: nobody has a choice
+    legal[0, 1:] = False
+    legal[0, 1:, 0] = True  # game 0: one decider (agent 0)
+    legal = jnp.asarray(legal)
+    a0 = jnp.zeros((B, N), jnp.int32)
+    ref = _run(w, a0, legal)
+    for wb in (1, 2, 3):
+        res = _run(w, a0, legal, work_batch=wb)
+        for f in ("actions", "q", "q_valid", "q_final", "q_init", "changes", "evaluated", "sweeps"):
+            np.testing.assert_array_equal(np.asarray(getattr(res, f)), np.asarray(getattr(ref, f)), err_msg=f)
+        assert int(res.visits) >= int(ref.visits)
+    assert not bool(np.asarray(ref.q_valid)[1].any()) and np.isnan(float(ref.q_init[1]))
+    # Evaluated rows: game 0 one visit; games 2 and 3 at most (sweeps + 1) x their deciders.
+    dec = (np.asarray(legal).sum(-1) >= 2).sum(-1)
+    assert dec[0] == 1 and dec[1] == 0
+    assert int(ref.evaluated) <= 1 + (int(ref.sweeps) + 1) * (dec[2] + dec[3])
+    one = _run(w[:1].repeat(B, 0), a0, jnp.broadcast_to(legal[:1], legal.shape))
+    assert int(one.evaluated) == B and int(one.sweeps) == 1  # one decider: one visit per game
 
 
 def test_iteration_cap_and_evaluation_sweep():

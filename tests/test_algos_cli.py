@@ -128,7 +128,7 @@ def test_every_preset_builds_and_round_trips_through_config_json():
                 assert config_from_dict(type(cfg), config_to_dict(cfg)) == cfg, (algo, name, env)
     hybrid = algo_module("hybrid").PRESETS
     combat, tj = hybrid["quick-lookahead"]("combat"), hybrid["quick-lookahead"]("traffic_junction")
-    assert (combat.lookahead_steps, combat.actor_target, combat.actor_steps, combat.total_episodes) == (4, "best", 4, 1800)
-    assert (combat.lookahead_policy, combat.num_envs, combat.actor_average_from) == ("demonstrator", 128, 900)
+    assert (combat.lookahead_steps, combat.actor_target, combat.actor_steps, combat.total_episodes) == (8, "best", 4, 3000)
+    assert (combat.lookahead_policy, combat.num_envs, combat.actor_average_from) == ("demonstrator", 128, 1500)
     assert (tj.lookahead_steps, tj.actor_target, tj.total_episodes) == (4, "advantage", 1_500)
     assert hybrid["quick"]("combat").lookahead_steps == 1  # the paper's one-step Q stays the default

@@ -7,8 +7,9 @@ and every action ``a`` it computes
     Q(s, a, Ã_-g) = r(s, a, Ã_-g) + λ V(s')          (Eq. 2, one-step forward simulation)
 
 takes the best legal action and writes it into ``Ã``. Here all ``A`` candidate joint actions of
-all ``B`` games are simulated by **one** vmapped call (``q_fn`` below), so one iteration costs
-``N`` such calls: linear in the number of agents (Section 4.2, "Iterations × N computations").
+a batch of games are simulated by **one** vmapped call (``q_fn`` below), so one iteration costs
+at most ``N`` such calls per batch: linear in the number of agents (Section 4.2, "Iterations × N
+computations").
 
 Implementation choices (none changes the fixed point Alg. 1 reaches):
 
@@ -19,11 +20,17 @@ Implementation choices (none changes the fixed point Alg. 1 reaches):
 - **An agent switches only on a strict improvement** (``Q(best) > Q(current)``): ties keep the
   current action (so a converged ``Ã`` is a fixed point and float noise cannot make ``Q`` go
   down). ``Q(s, Ã)`` therefore never decreases (Section 4.2: "In each iteration ... Q increases").
-- **Early exit.** When a whole sweep changes nothing in any game, the remaining iterations
-  would be no-ops and the loop stops (``Iterations`` = 7 is the cap, Section 5.1).
-- **Eq. 7 needs ``Q(s, a, Ã_-g)`` at the final ``Ã``.** The table of the last sweep is exact if
-  that sweep changed nothing; otherwise (the cap was hit) one extra evaluation sweep, with no
-  updates, recomputes it.
+- **Early exit, per game.** A game stops sweeping once a sweep changed nothing in it, or
+  changed only its first decider's action: every row of that sweep was then computed at the
+  final Ã, which is a fixed point, so further sweeps would repeat the same Q rows and change
+  nothing. The loop stops when no game is left (``Iterations`` = 7 is the cap, Section 5.1).
+- **Only the needed visits are simulated.** Each visit (a decider position ``k`` of a sweep)
+  gathers the games that still need it and calls ``q_fn`` on ``work_batch`` of them at a time,
+  so the cost follows the (game, agent) visits Alg. 1 actually makes, not ``B x`` the busiest
+  game's. At m5v5 under a learning actor, a game has about 1.7 deciders out of 5 per step.
+- **Eq. 7 needs ``Q(s, a, Ã_-g)`` at the final Ã.** The table of a game's last sweep is exact
+  if that sweep changed nothing (or only its first decider); otherwise (the cap was hit) one
+  extra evaluation sweep, with no updates, recomputes it.
 - An illegal start action is replaced by the agent's first legal action.
 - The simulator key is the same for every candidate and every iteration of one state (common
   random numbers): ``Q(s, A)`` is a deterministic function of ``A``.
@@ -50,7 +57,8 @@ class BRDResult(NamedTuple):
     sweeps: jax.Array  # int32 []: update sweeps run (<= iterations)
     changes: jax.Array  # int32 [B]: single-agent switches made
     trace: jax.Array  # float32 [iterations * N, B]: Q(s, Ã) after each update (NaN: no update)
-    visits: jax.Array  # int32 []: batched Q evaluations made (= one-step simulations of B x A)
+    visits: jax.Array  # int32 []: calls of q_fn (each on ``work_batch`` games x A candidates)
+    evaluated: jax.Array  # int32 []: (game, agent) Q rows computed: the work Alg. 1 needed
 
 
 def make_q_fn(
@@ -118,6 +126,7 @@ def best_response_dynamics(
     legal: jax.Array,
     iterations: int = 7,
     min_gain: float = 0.0,
+    work_batch: int | None = None,
 ) -> BRDResult:
     """Alg. 1 for B games at once (see the module docstring). Jittable.
 
@@ -132,74 +141,105 @@ def best_response_dynamics(
             this (0: any strict improvement, the paper's argmax). A positive margin keeps the
             start action where alternatives are near-ties, which makes Ã a less noisy target
             for the decentralised actor. ``Q(s, Ã)`` still never decreases.
+        work_batch: games per ``q_fn`` call (None or <= 0: all B). Each visit gathers the games that
+            still need that visit and simulates them ``work_batch`` at a time, so the cost
+            follows the visits actually needed rather than ``B x`` the busiest game's. It does
+            not change the result (up to float rounding of ``q_fn`` at another batch size).
     """
     b, n, na = legal.shape
+    s_batch = b if work_batch is None or work_batch <= 0 else min(int(work_batch), b)
+    max_passes = -(-b // s_batch)
+    dense = s_batch == b
     a_init = a_init.astype(jnp.int32)
-    bidx = jnp.arange(b)
     actions_range = jnp.arange(na, dtype=jnp.int32)
     decider = jnp.sum(legal, axis=-1) >= 2  # [B, N]
     # Deciders first, in agent order (stable sort on "not a decider").
     perm = jnp.argsort(~decider, axis=1, stable=True).astype(jnp.int32)  # [B, N]
     n_dec = jnp.sum(decider, axis=1).astype(jnp.int32)  # [B]
-    max_dec = jnp.max(n_dec)
     # An illegal start action (e.g. a demonstrator that ignores a mask) becomes the first legal one.
     start_ok = jnp.take_along_axis(legal, a_init[..., None], axis=-1)[..., 0]
     a_init = jnp.where(start_ok, a_init, jnp.argmax(legal, axis=-1)).astype(jnp.int32)
+    t_last = max(iterations, 1) * n - 1
 
-    def visit(k: jax.Array, carry: tuple) -> tuple:
-        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep, update, visits = carry
-        g = perm[:, jnp.minimum(k, n - 1)]  # [B]: the agent visited in each game
-        valid = k < n_dec  # [B]
-        cand = jnp.broadcast_to(act[:, None, :], (b, na, n))
+    def one_pass(p: jax.Array, carry: tuple) -> tuple:
+        """Position k's visit for the next ``work_batch`` of the games that need it."""
+        (act, qtab, qval, qcur, changed, late, changes, q_init, trace), (k, order, need, sweep, update) = carry
+        idx = jax.lax.dynamic_slice(order, (p * s_batch,), (s_batch,))  # [S]; b = padding
+        gi = jnp.minimum(idx, b - 1)
+        valid = (idx < b) & need[gi]
+        w = jnp.where(valid, idx, b)  # scatter index: out of range (dropped) unless valid
+        g = perm[gi, jnp.minimum(k, n - 1)]  # [S]: the agent visited in each game
+        sidx = jnp.arange(s_batch)
+        rows = act if dense else act[gi]  # [S, N]
+        cand = jnp.broadcast_to(rows[:, None, :], (s_batch, na, n))
         cand = jnp.where(jnp.arange(n)[None, None, :] == g[:, None, None], actions_range[None, :, None], cand)
-        q = q_fn(keys, states, cand)  # [B, A]: Q(s, a, Ã_-g) for every action a
-        lg = legal[bidx, g]  # [B, A]
+        sub = states if dense else jax.tree.map(lambda x: x[gi], states)
+        q = q_fn(keys if dense else keys[gi], sub, cand)  # [S, A]: Q(s, a, Ã_-g) for every action a
+        lg = legal[gi, g]  # [S, A]
         ql = jnp.where(lg, q, -jnp.inf)
         best = jnp.argmax(ql, axis=-1).astype(jnp.int32)
-        cur = act[bidx, g]
-        q_cur = jnp.where(lg[bidx, cur], q[bidx, cur], -jnp.inf)
-        q_best = ql[bidx, best]
+        cur = rows[sidx, g]
+        q_cur = jnp.where(lg[sidx, cur], q[sidx, cur], -jnp.inf)
+        q_best = ql[sidx, best]
         improve = valid & (q_best > q_cur + min_gain) & update
-        act = act.at[bidx, g].set(jnp.where(improve, best, cur))
-        qtab = qtab.at[bidx, g].set(jnp.where(valid[:, None], q, qtab[bidx, g]))
-        qval = qval.at[bidx, g].set(qval[bidx, g] | valid)
         q_now = jnp.where(improve, q_best, q_cur)
-        qcur = jnp.where(valid, q_now, qcur)
-        q_init = jnp.where(valid & jnp.isnan(q_init), q_cur, q_init)
-        changed = changed | improve
-        changes = changes + improve.astype(jnp.int32)
-        idx = jnp.minimum(sweep * n + k, max(iterations, 1) * n - 1)
-        trace = trace.at[idx].set(jnp.where(update, jnp.where(valid, q_now, jnp.nan), trace[idx]))
-        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep, update, visits + 1
+        act = act.at[w, g].set(jnp.where(improve, best, cur), mode="drop")
+        qtab = qtab.at[w, g].set(q, mode="drop")
+        qval = qval.at[w, g].set(True, mode="drop")
+        qcur = qcur.at[w].set(q_now, mode="drop")
+        q_init = q_init.at[w].set(jnp.where(jnp.isnan(q_init[gi]), q_cur, q_init[gi]), mode="drop")
+        changed = changed.at[w].set(changed[gi] | improve, mode="drop")
+        late = late.at[w].set(late[gi] | (improve & (k > 0)), mode="drop")
+        changes = changes.at[w].add(improve.astype(jnp.int32), mode="drop")
+        t = jnp.minimum(sweep * n + k, t_last)
+        trace = trace.at[t, jnp.where(update, w, b)].set(q_now, mode="drop")
+        return (act, qtab, qval, qcur, changed, late, changes, q_init, trace), (k, order, need, sweep, update)
+
+    def visit(k: jax.Array, carry: tuple) -> tuple:
+        tables, active, sweep, update, visits, evaluated = carry
+        need = active & (k < n_dec)  # [B]: games whose k-th decider is visited now
+        count = jnp.sum(need).astype(jnp.int32)
+        if dense:  # one call on all games in place (no gather)
+            order = jnp.arange(b, dtype=jnp.int32)
+        else:
+            order = jnp.argsort(~need, stable=True).astype(jnp.int32)
+            order = jnp.concatenate([order, jnp.full((max_passes * s_batch - b,), b, jnp.int32)])
+        passes = (count + s_batch - 1) // s_batch
+        tables, _ = jax.lax.fori_loop(0, passes, one_pass, (tables, (k, order, need, sweep, update)))
+        return tables, active, sweep, update, visits + passes, evaluated + count
 
     def sweep_fn(carry: tuple) -> tuple:
-        """One pass over the agents; an update sweep while fewer than ``iterations`` were run,
-        else an evaluation-only sweep (the cap was hit: refresh the table at the final Ã)."""
-        act, qtab, qval, qcur, _, changes, q_init, trace, sweep, _, _, visits = carry
+        """One pass over the agents of the games still active: an update sweep while fewer
+        than ``iterations`` were run, else an evaluation-only sweep (the cap was hit: refresh
+        the table at the final Ã)."""
+        tables, active, sweep, visits, evaluated = carry
+        act, qtab, qval, qcur, _, _, changes, q_init, trace = tables
         update = sweep < iterations
-        inner = (act, qtab, qval, qcur, jnp.zeros((b,), bool), changes, q_init, trace, sweep, update, visits)
-        inner = jax.lax.fori_loop(0, max_dec, visit, inner)
-        act, qtab, qval, qcur, changed, changes, q_init, trace, sweep, update, visits = inner
-        # Done when a sweep changed nothing (the table is exact) or after the evaluation sweep.
-        finished = ~jnp.any(changed) | ~update
-        return act, qtab, qval, qcur, changed, changes, q_init, trace, sweep + update.astype(jnp.int32), update, finished, visits
+        zeros = jnp.zeros((b,), bool)
+        tables = (act, qtab, qval, qcur, zeros, zeros, changes, q_init, trace)
+        max_dec = jnp.max(jnp.where(active, n_dec, 0))
+        tables, _, _, _, visits, evaluated = jax.lax.fori_loop(0, max_dec, visit, (tables, active, sweep, update, visits, evaluated))
+        # A game is done when its sweep changed nothing, or only its first decider changed
+        # (every row was then computed at the final Ã, which is a fixed point), or after the
+        # evaluation sweep; a further sweep would repeat the same Q rows and change nothing.
+        changed, late = tables[4], tables[5]
+        active = active & update & changed & late
+        return tables, active, sweep + update.astype(jnp.int32), visits, evaluated
 
-    init = (
+    tables = (
         a_init,
         jnp.zeros((b, n, na), jnp.float32),
         jnp.zeros((b, n), bool),
         jnp.full((b,), jnp.nan, jnp.float32),
         jnp.zeros((b,), bool),
+        jnp.zeros((b,), bool),
         jnp.zeros((b,), jnp.int32),
         jnp.full((b,), jnp.nan, jnp.float32),
         jnp.full((max(iterations, 1) * n, b), jnp.nan, jnp.float32),
-        jnp.zeros((), jnp.int32),
-        jnp.asarray(True),
-        jnp.asarray(False),
-        jnp.zeros((), jnp.int32),
     )
-    carry = jax.lax.while_loop(lambda c: ~c[-2], sweep_fn, init)
-    act, qtab, qval, qcur, _, changes, q_init, trace, sweep, _, _, visits = carry
+    zero = jnp.zeros((), jnp.int32)
+    carry = jax.lax.while_loop(lambda c: jnp.any(c[1]), sweep_fn, (tables, n_dec > 0, zero, zero, zero))
+    (act, qtab, qval, qcur, _, _, changes, q_init, trace), _, sweep, visits, evaluated = carry
     return BRDResult(
         actions=act,
         q=qtab,
@@ -210,4 +250,5 @@ def best_response_dynamics(
         changes=changes,
         trace=trace,
         visits=visits,
+        evaluated=evaluated,
     )

@@ -123,6 +123,13 @@ class HybridConfig(TrainConfig):
     by more than this (in units of the normalised return; one Marine shot at m5v5 is 0.03).
     0: the paper's plain argmax. A margin keeps near-ties at the start action, so Ã changes
     the start policy only where it matters and is a cleaner target for the actor."""
+    brd_work_batch: int = 16
+    """Games per simulation call inside Alg. 1 (an implementation choice; it does not change Ã).
+    Each visit of Alg. 1 simulates only the games that still need it, this many at a time; 0:
+    all ``num_envs`` games in every call (the dense schedule, which a GPU may prefer). On a CPU,
+    at m5v5 with 128 games of a trained actor and the ``quick-lookahead`` Q, 16 makes one call
+    of Alg. 1 2.8-4.6x faster than 0 (``python bench/brd_schedule.py --checkpoint ...``; README,
+    "Speed")."""
     lookahead_steps: int = 1
     """Forward simulation per Q estimate in Alg. 1. 1: the paper's one-step simulation,
     Q = r + λ V(s') (Eq. 2, Section 4.2). K > 1 (an extension): the continuation policy (the
@@ -245,22 +252,22 @@ def _quick_rollout(env: str) -> HybridConfig:
 
 def _quick_lookahead(env: str) -> HybridConfig:
     """An extension, not the paper's setting: the recipe of our best CPU runs (README,
-    "Results"). Alg. 1's Q simulates 4 steps before the critic bootstraps
-    (``lookahead_steps=4``). Combat: the 3 continuation steps are played by the demonstrator
-    script (``lookahead_policy="demonstrator"``: a 4-step Q^D, and about 3x cheaper per step than
+    "Results"). Alg. 1's Q simulates K steps before the critic bootstraps (``lookahead_steps``).
+    Combat: K = 8, the 7 continuation steps played by the demonstrator script
+    (``lookahead_policy="demonstrator"``: an 8-step Q^D, several times cheaper per step than
     the actor's network), 128 games in parallel, the actor trained by cross-entropy toward
     Alg. 1's ã_g with 4 steps per env step (``actor_target="best"``, ``actor_steps=4``) for
-    1,800 episodes, and the run's policy is the actor's weight average from episode 900 on
-    (``actor_average_from=900``), evaluated every 150 episodes. m5v5, seeds 0/1/2: W 0.85/0.89/
-    0.87 against D's 0.44 on the same 100 states in 26-28 CPU-min (README, "Results"). Traffic
-    Junction keeps Eq. 8, the actor as continuation, 32 games and 1,500 episodes (failure 0.176
-    against D's 0.959)."""
+    3,000 episodes, and the run's policy is the actor's weight average from episode 1,500 on
+    (``actor_average_from=1500``), evaluated every 150 episodes. m5v5 against D's 0.39 on 500
+    states (``eval --n 500 --seed 3``): see the README's "Results" for every seed; about 21
+    CPU-min. Traffic Junction keeps K = 4, Eq. 8, the actor as continuation, 32 games and 1,500
+    episodes (failure 0.176 against D's 0.959)."""
     base = dataclasses.replace(_quick(env), lookahead_steps=4)
     if env == "traffic_junction":
         return base
     return dataclasses.replace(
-        base, actor_target="best", actor_steps=4, lookahead_policy="demonstrator", num_envs=128, total_episodes=1800,
-        actor_average_from=900, eval_every=150,
+        base, lookahead_steps=8, actor_target="best", actor_steps=4, lookahead_policy="demonstrator", num_envs=128,
+        total_episodes=3000, actor_average_from=1500, eval_every=150,
     )
 
 
@@ -325,6 +332,7 @@ class Learner:
                 lookahead=simulated_steps(cfg),
                 actor_steps=cfg.actor_steps, target=cfg.actor_target, online=cfg.actor_buffer <= 0,
                 min_gain=cfg.brd_min_gain, act_before_update=cfg.act_before_update,
+                work_batch=cfg.brd_work_batch,
             )
         )
         self.fit_critic = jax.jit(functools.partial(self._fit_critic, batch=cfg.critic_batch_size))
@@ -409,7 +417,7 @@ class Learner:
         value_fn = self.value_fn(critic_vars) if lookahead < TO_THE_END else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
         return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, step_fn=step_fn, policy_fn=policy)
 
-    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float, act_before_update: bool):
+    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float, act_before_update: bool, work_batch: int):
         task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
 
         def act(actor, key, states, obs, legal):
@@ -419,7 +427,7 @@ class Learner:
             a_actor = nets.actor_actions(mod, actor, obs, legal)
             # Alg. 1 from the actor's actions (Section 4.3) or from A^D.
             a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, states, obs, legal)
-            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations, min_gain)
+            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations, min_gain, work_batch or None)
             # Eq. 7: advantage of every legal action of every agent that has a choice.
             adv = advantages(res.q, legal)
             weight = res.q_valid & (jnp.sum(legal, -1) >= 2)
@@ -453,6 +461,7 @@ class Learner:
             aux = {
                 "actor_loss": loss,
                 "brd_sweeps": res.sweeps.astype(jnp.float32),
+                "brd_visits": res.evaluated.astype(jnp.float32) / b,
                 "brd_changes": jnp.mean(res.changes.astype(jnp.float32)),
                 "q_gain": jnp.nanmean(res.q_final - res.q_init),
                 "q_final": jnp.nanmean(res.q_final),
@@ -495,7 +504,7 @@ def _static_cfg(cfg: HybridConfig) -> HybridConfig:
     keep = {
         "num_envs", "chunk_steps", "gamma", "brd_iterations", "brd_start", "lookahead_steps", "optimizer", "actor_lr",
         "critic_lr", "momentum", "critic_batch_size", "actor_hidden", "critic_hidden", "actor_steps", "actor_target", "actor_buffer", "actor_batch_size", "brd_min_gain",
-        "act_before_update", "lookahead_policy",
+        "act_before_update", "lookahead_policy", "brd_work_batch",
     }
     return HybridConfig(**{f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name in keep})
 
