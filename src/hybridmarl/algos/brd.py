@@ -163,7 +163,7 @@ def best_response_dynamics(
 
     def one_pass(p: jax.Array, carry: tuple) -> tuple:
         """Position k's visit for the next ``work_batch`` of the games that need it."""
-        (act, qtab, qval, qcur, changed, late, changes, q_init, trace), (k, order, need, sweep, update) = carry
+        (act, qtab, qval, qcur, late, changes, q_init, trace), (k, order, need, sweep, update) = carry
         idx = jax.lax.dynamic_slice(order, (p * s_batch,), (s_batch,))  # [S]; b = padding
         gi = jnp.minimum(idx, b - 1)
         valid = (idx < b) & need[gi]
@@ -188,12 +188,11 @@ def best_response_dynamics(
         qval = qval.at[w, g].set(True, mode="drop")
         qcur = qcur.at[w].set(q_now, mode="drop")
         q_init = q_init.at[w].set(jnp.where(jnp.isnan(q_init[gi]), q_cur, q_init[gi]), mode="drop")
-        changed = changed.at[w].set(changed[gi] | improve, mode="drop")
         late = late.at[w].set(late[gi] | (improve & (k > 0)), mode="drop")
         changes = changes.at[w].add(improve.astype(jnp.int32), mode="drop")
         t = jnp.minimum(sweep * n + k, t_last)
         trace = trace.at[t, jnp.where(update, w, b)].set(q_now, mode="drop")
-        return (act, qtab, qval, qcur, changed, late, changes, q_init, trace), (k, order, need, sweep, update)
+        return (act, qtab, qval, qcur, late, changes, q_init, trace), (k, order, need, sweep, update)
 
     def visit(k: jax.Array, carry: tuple) -> tuple:
         tables, active, sweep, update, visits, evaluated = carry
@@ -213,17 +212,16 @@ def best_response_dynamics(
         than ``iterations`` were run, else an evaluation-only sweep (the cap was hit: refresh
         the table at the final Ã)."""
         tables, active, sweep, visits, evaluated = carry
-        act, qtab, qval, qcur, _, _, changes, q_init, trace = tables
+        act, qtab, qval, qcur, _, changes, q_init, trace = tables
         update = sweep < iterations
-        zeros = jnp.zeros((b,), bool)
-        tables = (act, qtab, qval, qcur, zeros, zeros, changes, q_init, trace)
+        tables = (act, qtab, qval, qcur, jnp.zeros((b,), bool), changes, q_init, trace)
         max_dec = jnp.max(jnp.where(active, n_dec, 0))
         tables, _, _, _, visits, evaluated = jax.lax.fori_loop(0, max_dec, visit, (tables, active, sweep, update, visits, evaluated))
         # A game is done when its sweep changed nothing, or only its first decider changed
         # (every row was then computed at the final Ã, which is a fixed point), or after the
         # evaluation sweep; a further sweep would repeat the same Q rows and change nothing.
-        changed, late = tables[4], tables[5]
-        active = active & update & changed & late
+        # ``late``: a decider after the first switched in this sweep.
+        active = active & update & tables[4]
         return tables, active, sweep + update.astype(jnp.int32), visits, evaluated
 
     tables = (
@@ -232,14 +230,13 @@ def best_response_dynamics(
         jnp.zeros((b, n), bool),
         jnp.full((b,), jnp.nan, jnp.float32),
         jnp.zeros((b,), bool),
-        jnp.zeros((b,), bool),
         jnp.zeros((b,), jnp.int32),
         jnp.full((b,), jnp.nan, jnp.float32),
         jnp.full((max(iterations, 1) * n, b), jnp.nan, jnp.float32),
     )
     zero = jnp.zeros((), jnp.int32)
     carry = jax.lax.while_loop(lambda c: jnp.any(c[1]), sweep_fn, (tables, n_dec > 0, zero, zero, zero))
-    (act, qtab, qval, qcur, _, _, changes, q_init, trace), _, sweep, visits, evaluated = carry
+    (act, qtab, qval, qcur, _, changes, q_init, trace), _, sweep, visits, evaluated = carry
     return BRDResult(
         actions=act,
         q=qtab,
