@@ -52,7 +52,7 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
     def call(keys, states):
         legal = jax.vmap(task.avail)(states)
         a0 = jax.vmap(demo)(keys, states)
-        return best_response_dynamics(q_fn, keys, states, a0, legal, iterations, work_batch=work_batch or None)
+        return best_response_dynamics(q_fn, keys, states, a0, legal, iterations, work_batch=work_batch)
 
     keys = jax.random.split(jax.random.key(seed + 1), batch)
     _, states = jax.vmap(task.reset)(keys)

@@ -70,7 +70,7 @@ def main() -> None:
 
         return jax.lax.scan(body, states, jax.random.split(key, args.warm_steps))[0]
 
-    calls = {wb: jax.jit(lambda k, s, a, lg, wb=wb: best_response_dynamics(q_fn, k, s, a, lg, cfg.brd_iterations, cfg.brd_min_gain, wb or None)) for wb in args.work_batches}
+    calls = {wb: jax.jit(lambda k, s, a, lg, wb=wb: best_response_dynamics(q_fn, k, s, a, lg, cfg.brd_iterations, cfg.brd_min_gain, wb)) for wb in args.work_batches}
     states = new_pool(task, jax.random.key(2), b).states
     sets = []
     for i in range(args.state_sets):

@@ -81,7 +81,7 @@ def main() -> None:
     @jax.jit
     def brd(states, obs, legal):
         a0 = nets.actor_actions(learner.actor_mod, actor, obs, legal)
-        return best_response_dynamics(q_fn, keys, states, a0, legal, cfg.brd_iterations, work_batch=cfg.brd_work_batch or None)
+        return best_response_dynamics(q_fn, keys, states, a0, legal, cfg.brd_iterations, work_batch=cfg.brd_work_batch)
 
     res = brd(pool.states, pool.obs, legal)
     t_brd, c_brd = timed(brd, pool.states, pool.obs, legal, repeats=args.repeats)

@@ -220,8 +220,8 @@ def best_response_dynamics(
         # A game is done when its sweep changed nothing, or only its first decider changed
         # (every row was then computed at the final Ã, which is a fixed point), or after the
         # evaluation sweep; a further sweep would repeat the same Q rows and change nothing.
-        # ``late``: a decider after the first switched in this sweep.
-        active = active & update & tables[4]
+        late = tables[4]  # a decider after the first switched in this sweep
+        active = active & update & late
         return tables, active, sweep + update.astype(jnp.int32), visits, evaluated
 
     tables = (

@@ -427,7 +427,7 @@ class Learner:
             a_actor = nets.actor_actions(mod, actor, obs, legal)
             # Alg. 1 from the actor's actions (Section 4.3) or from A^D.
             a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, states, obs, legal)
-            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations, min_gain, work_batch or None)
+            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations, min_gain, work_batch)
             # Eq. 7: advantage of every legal action of every agent that has a choice.
             adv = advantages(res.q, legal)
             weight = res.q_valid & (jnp.sum(legal, -1) >= 2)
