@@ -12,12 +12,14 @@ JSON object::
         "call_s_median": ..., "visits": ..., "sweeps": ..., "s_per_visit": ...,
         "s_per_agent_sweep": ..., "us_per_simulated_step": ...}, ...]}
 
-``visits`` = calls of the batched Q estimate in one call of Alg. 1, each on ``--work-batch``
-games (default 0: all B, the dense schedule; every game has all N agents deciding here, so this
-is the (game, agent) visits over all sweeps, including the final evaluation sweep, divided by
-B); each call simulates (work batch) x A one-step transitions and evaluates the critic on them.
-``agent_visits`` = the (game, agent) visits Alg. 1 needed. Linear cost in N shows as a flat ``s_per_agent_sweep`` for a fixed number of
-actions; ``us_per_simulated_step`` divides out the actions too.
+``visits`` = calls of the batched Q estimate in one call of Alg. 1 (default ``--work-batch 0``:
+the dense schedule, each call simulates all B games x A candidates; every game has all N agents
+deciding here, so this is the (game, agent) visits over all sweeps, including the final
+evaluation sweep, divided by B). With a work batch S > 0, each call simulates S x A legal (game,
+action) candidates. ``agent_visits`` = the (game, agent) visits Alg. 1 needed; ``simulated`` =
+the candidate joint actions simulated (padding included), each a one-step transition plus a
+critic evaluation. Linear cost in N shows as a flat ``s_per_agent_sweep`` for a fixed number of
+actions; ``us_per_simulated_step`` divides out the candidates too.
 
     python bench/brd.py [--batch 32] [--scenarios m5v5 m18v20 m30v30] [--repeats 3] [--iterations 7] [--work-batch 0]
 """
@@ -67,7 +69,7 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
     visits = int(res.visits)
     n, a = task.num_agents, task.num_actions
     best = min(times)
-    per_call = batch if work_batch <= 0 else min(work_batch, batch)
+    per_call = batch if work_batch <= 0 else min(work_batch, batch)  # candidates per call: per_call x A
     sweeps_total = int(res.evaluated) / (batch * n)
     return {
         "scenario": scenario,
@@ -83,7 +85,8 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
         "update_sweeps": int(res.sweeps),
         "s_per_visit": round(best / visits, 6),
         "s_per_agent_sweep": round(best / max(sweeps_total, 1e-9) / n, 6),
-        "us_per_simulated_step": round(1e6 * best / (visits * per_call * a), 3),
+        "simulated": int(res.simulated),
+        "us_per_simulated_step": round(1e6 * best / max(int(res.simulated), 1), 3),
         "mean_changes_per_game": float(jnp.mean(res.changes)),
     }
 
@@ -95,7 +98,7 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--iterations", type=int, default=7)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--work-batch", type=int, default=0, help="games per Q call inside Alg. 1 (0: all)")
+    p.add_argument("--work-batch", type=int, default=0, help="Q calls inside Alg. 1 simulate this many x |A| legal candidates (0: all games x all actions)")
     args = p.parse_args()
     out = {
         "batch": args.batch,

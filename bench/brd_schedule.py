@@ -7,10 +7,10 @@ RUN_DIR/checkpoints/ckpt_N``: its actor and critic are loaded; otherwise random 
 games in every call, the dense schedule). Repeated on ``--state-sets`` successive sets of states.
 Prints one JSON object; per state set and work batch: ``s_min``/``s_median`` of ``--repeats``
 calls, ``compile_s``, ``calls`` (q_fn calls), ``agent_visits`` (the (game, agent) visits Alg. 1
-needed), and how the result compares with the dense schedule's (``same_actions``, ``max_q_diff``
+needed), ``simulated`` (candidate joint actions simulated, padding included), and how the result compares with the dense schedule's (``same_actions``, ``max_q_diff``
 over the rows both computed).
 
-    python bench/brd_schedule.py [--checkpoint DIR] [--scenario m5v5] [--work-batches 0 32 16 8]
+    python bench/brd_schedule.py [--checkpoint DIR] [--scenario m5v5] [--work-batches 0 16 8 4 2 1]
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ def main() -> None:
     p.add_argument("--scenario", default="m5v5")
     p.add_argument("--preset", default="quick-lookahead")
     p.add_argument("--checkpoint", help="a checkpoint directory whose actor and critic to load")
-    p.add_argument("--work-batches", type=int, nargs="+", default=[0, 32, 16, 8])
+    p.add_argument("--work-batches", type=int, nargs="+", default=[0, 16, 8, 4, 2, 1])
     p.add_argument("--state-sets", type=int, default=3)
     p.add_argument("--warm-steps", type=int, default=10)
     p.add_argument("--repeats", type=int, default=3)
@@ -93,7 +93,7 @@ def main() -> None:
             both = (ref.q_valid & res.q_valid)[..., None]
             row["work_batch"][str(wb)] = {
                 "s_min": round(min(times), 4), "s_median": round(statistics.median(times), 4), "compile_s": round(compile_s, 1),
-                "calls": int(res.visits), "agent_visits": int(res.evaluated), "sweeps": int(res.sweeps),
+                "calls": int(res.visits), "agent_visits": int(res.evaluated), "simulated": int(res.simulated), "sweeps": int(res.sweeps),
                 "same_actions": bool(jnp.all(res.actions == ref.actions)), "max_q_diff": float(jnp.max(jnp.where(both, jnp.abs(res.q - ref.q), 0.0))),
             }
         sets.append(row)

@@ -55,7 +55,7 @@ def main() -> None:
     p.add_argument("--scenario", default="m5v5")
     p.add_argument("--preset", default="quick")
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--work-batch", type=int, help="override the preset's brd_work_batch (0: all games per call)")
+    p.add_argument("--work-batch", type=int, help="override the preset's brd_work_batch (0: the dense schedule)")
     p.add_argument("--lookahead-policy", choices=["start", "actor", "demonstrator"], help="override the preset's lookahead_policy")
     args = p.parse_args()
     cfg = dataclasses.replace(PRESETS[args.preset](args.env), scenario=args.scenario)
@@ -121,7 +121,7 @@ def main() -> None:
         "env": args.env, "scenario": args.scenario if args.env == "combat" else None, "preset": args.preset,
         "lookahead_steps": cfg.lookahead_steps, "lookahead_policy": continuation_policy(cfg),
         "batch": b, "agents": task.num_agents, "actions": task.num_actions, "chunk_steps": cfg.chunk_steps,
-        "brd_work_batch": cfg.brd_work_batch, "brd_calls": int(res.visits), "brd_agent_visits": int(res.evaluated),
+        "brd_work_batch": cfg.brd_work_batch, "brd_calls": int(res.visits), "brd_agent_visits": int(res.evaluated), "brd_simulated": int(res.simulated),
         "brd_update_sweeps": int(res.sweeps),
         "seconds": {
             "brd": round(t_brd, 5), "actor_update": round(t_upd, 5), "env_step": round(t_env, 5),

@@ -354,3 +354,20 @@ def test_tj_replay_reports_the_time_penalty():
     assert on["time_penalty"] and not off["time_penalty"]
     assert on["arrivals"] == off["arrivals"] and on["collisions"] == off["collisions"]  # same episode
     assert on["return"] < off["return"]  # cars were on the road, each paying -0.01·τ per step
+
+
+def test_time_limit_stops_alg2_and_still_evaluates(tmp_path, capsys):
+    """``time_limit_min``: Alg. 2 stops at the first chunk boundary past the limit; the run is
+    then checkpointed and evaluated as usual, and ``eval.json`` says the clock stopped it."""
+    from hybridmarl.algos.checkpoint import latest_checkpoint, load_checkpoint
+    from hybridmarl.algos.hybrid import PRESETS, train
+
+    cfg = dataclasses.replace(
+        PRESETS["toy"]("traffic_junction"), progress=False, total_episodes=10_000, time_limit_min=1e-6, run_dir=str(tmp_path / "run"),
+    )
+    assert train(cfg) == 0
+    assert "time limit of 1e-06 min reached" in capsys.readouterr().out
+    _, meta = load_checkpoint(latest_checkpoint(tmp_path / "run"))
+    assert meta["episodes"] < 10_000 and meta["iterations"] == 1  # one chunk of Alg. 2
+    res = json.loads((tmp_path / "run" / "eval.json").read_text())
+    assert res["time_limited"] is True and res["episodes"] == meta["episodes"] and "failure_rate" in res

@@ -51,9 +51,9 @@ class QuickstartConfig:
     learned from c fights w, and vice versa)."""
     preset: str = "quick"
     """Training preset of ``hybridmarl train --algo hybrid``: ``quick`` (the paper's method,
-    minutes on a CPU) or ``quick-lookahead`` (an extension, about 21-23 CPU-minutes, the recipe
-    of our best runs: W 0.89-0.93 over four seeds against D's 0.44 on the same states; README,
-    "Results")."""
+    minutes on a CPU) or ``quick-lookahead`` (an extension, the recipe of our best runs: W
+    0.89-0.93 over four seeds against D's 0.44 on the same states in 21-23 CPU-minutes, about
+    10 since session 9's faster Alg. 1; README, "Results")."""
     seed: int = 0
     """Seed of training and of the evaluation's start states."""
     n: int = 100

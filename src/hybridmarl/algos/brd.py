@@ -24,10 +24,12 @@ Implementation choices (none changes the fixed point Alg. 1 reaches):
   changed only its first decider's action: every row of that sweep was then computed at the
   final Ã, which is a fixed point, so further sweeps would repeat the same Q rows and change
   nothing. The loop stops when no game is left (``Iterations`` = 7 is the cap, Section 5.1).
-- **Only the needed visits are simulated.** Each visit (a decider position ``k`` of a sweep)
-  gathers the games that still need it and calls ``q_fn`` on ``work_batch`` of them at a time,
-  so the cost follows the (game, agent) visits Alg. 1 actually makes, not ``B x`` the busiest
-  game's. At m5v5 under a learning actor, a game has about 1.7 deciders out of 5 per step.
+- **Only the needed candidates are simulated.** Each visit (a decider position ``k`` of a
+  sweep) gathers the (game, action) pairs it needs, the legal actions of the visited agent in
+  every game that still needs the visit, and simulates them ``work_batch x A`` at a time (``A``
+  = the number of actions). The cost follows the legal candidates Alg. 1 actually evaluates, not
+  ``B x A x`` the busiest game's deciders: at m5v5 under a learning actor, a game has about 1.7
+  deciders out of 5 per step, and an illegal action (an enemy out of range) is never simulated.
 - **Eq. 7 needs ``Q(s, a, Ã_-g)`` at the final Ã.** The table of a game's last sweep is exact
   if that sweep changed nothing (or only its first decider); otherwise (the cap was hit) one
   extra evaluation sweep, with no updates, recomputes it.
@@ -50,15 +52,16 @@ QFn = Callable[[jax.Array, Any, jax.Array], jax.Array]
 
 class BRDResult(NamedTuple):
     actions: jax.Array  # int32 [B, N]: Ã, the joint local optimum
-    q: jax.Array  # float32 [B, N, A]: Q(s, a, Ã_-g) at the final Ã (0 where not computed)
+    q: jax.Array  # float32 [B, N, A]: Q(s, a, Ã_-g) at the final Ã (0: illegal or not computed)
     q_valid: jax.Array  # bool [B, N]: agent g's row of ``q`` was computed (it has a choice)
     q_init: jax.Array  # float32 [B]: Q(s, A_start) (NaN if no agent has a choice)
     q_final: jax.Array  # float32 [B]: Q(s, Ã)
     sweeps: jax.Array  # int32 []: update sweeps run (<= iterations)
     changes: jax.Array  # int32 [B]: single-agent switches made
     trace: jax.Array  # float32 [iterations * N, B]: Q(s, Ã) after each update (NaN: no update)
-    visits: jax.Array  # int32 []: calls of q_fn (each on ``work_batch`` games x A candidates)
+    visits: jax.Array  # int32 []: calls of q_fn (each on ``work_batch x A`` candidates)
     evaluated: jax.Array  # int32 []: (game, agent) Q rows computed: the work Alg. 1 needed
+    simulated: jax.Array  # int32 []: candidate joint actions simulated (padding included): the cost
 
 
 def make_q_fn(
@@ -69,6 +72,7 @@ def make_q_fn(
     steps: int = 1,
     step_fn: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]] | None = None,
     policy_fn: Callable[[jax.Array, Any], jax.Array] | None = None,
+    batch_step_fn: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]] | None = None,
 ) -> QFn:
     """Build Eq. 2's ``Q(s, A) = r + λ V(s')`` (``V(s') = 0`` at a terminal ``s'``) for B games.
 
@@ -81,19 +85,33 @@ def make_q_fn(
     end: ``Q = sum_{i<K} λ^i r_i + λ^K V(s_K)``, the same quantity with less weight on the
     critic's error (exact when the episode ends within K steps; the simulator is deterministic
     under the shared key). The loop stops early when every simulated game has ended.
+
+    ``batch_step_fn(keys [M], states [M], actions [M, N]) -> (r, s', done)``, if given, replaces
+    ``lookahead`` and ``jax.vmap(step_fn)`` with a batched step that gives the same results
+    (combat: ``Combat.batch_step``, which does not advance the whole batch in lockstep with its
+    slowest game's enemy-only turns).
     """
 
     def q_fn(keys: jax.Array, states: Any, cand: jax.Array) -> jax.Array:
-        r, s2, done = jax.vmap(lookahead)(keys, states, cand)
-        b, a = r.shape
-        flat = jax.tree.map(lambda x: x.reshape((b * a,) + x.shape[2:]), s2)
+        b, a = cand.shape[:2]
+        if batch_step_fn is None:
+            r, s2, done = jax.vmap(lookahead)(keys, states, cand)
+            flat = jax.tree.map(lambda x: x.reshape((b * a,) + x.shape[2:]), s2)
+        else:
+            rep = (lambda x: x) if a == 1 else (lambda x: jnp.repeat(x, a, axis=0))
+            r, flat, done = batch_step_fn(rep(keys), jax.tree.map(rep, states), cand.reshape((b * a,) + cand.shape[2:]))
         ret = r.reshape(-1)
         disc = jnp.full((b * a,), gamma, jnp.float32)
         ended = done.reshape(-1)
         if steps > 1:
-            if step_fn is None or policy_fn is None:
-                raise ValueError("steps > 1 needs step_fn and policy_fn")
-            sim, play = step_fn, policy_fn
+            if (step_fn is None and batch_step_fn is None) or policy_fn is None:
+                raise ValueError("steps > 1 needs step_fn (or batch_step_fn) and policy_fn")
+            play = policy_fn
+            if batch_step_fn is not None:
+                sim = batch_step_fn
+            else:
+                assert step_fn is not None
+                sim = jax.vmap(step_fn)
             game_keys = jnp.repeat(keys, a, axis=0)  # one key per game: common random numbers
 
             def cond(c: tuple) -> jax.Array:
@@ -104,7 +122,7 @@ def make_q_fn(
                 i, ret, disc, s, ended = c
                 ks = jax.vmap(lambda k: jax.random.fold_in(k, i + 1))(game_keys)
                 acts = play(ks, s)
-                r2, s_next, d2 = jax.vmap(sim)(ks, s, acts)
+                r2, s_next, d2 = sim(ks, s, acts)
                 live = ~ended
                 ret = ret + jnp.where(live, disc * r2, 0.0)
                 disc = jnp.where(live, disc * gamma, disc)
@@ -141,17 +159,22 @@ def best_response_dynamics(
             this (0: any strict improvement, the paper's argmax). A positive margin keeps the
             start action where alternatives are near-ties, which makes Ã a less noisy target
             for the decentralised actor. ``Q(s, Ã)`` still never decreases.
-        work_batch: games per ``q_fn`` call (None or <= 0: all B). Each visit gathers the games that
-            still need that visit and simulates them ``work_batch`` at a time, so the cost
-            follows the visits actually needed rather than ``B x`` the busiest game's. It does
-            not change the result (up to float rounding of ``q_fn`` at another batch size).
+        work_batch: ``q_fn`` calls simulate ``work_batch x A`` candidates each (None or <= 0, or
+            >= B: the dense schedule, every game's A candidates in one call per visit, in place).
+            Otherwise each visit gathers the legal (game, action) pairs of the games that still
+            need it and simulates only those, so the cost follows the candidates Alg. 1 needs
+            rather than ``B x A x`` the busiest game's deciders. It does not change the result
+            (up to float rounding of ``q_fn`` at another batch size).
     """
     b, n, na = legal.shape
-    s_batch = b if work_batch is None or work_batch <= 0 else min(int(work_batch), b)
-    max_passes = -(-b // s_batch)
-    dense = s_batch == b
+    wb = 0 if work_batch is None else int(work_batch)
+    dense = wb <= 0 or wb >= b
+    # Compact schedule: each q_fn call simulates ``pairs`` (game, legal action) candidates.
+    pairs = b * na if dense else wb * na
+    max_passes = -(-(b * na) // pairs)
     a_init = a_init.astype(jnp.int32)
     actions_range = jnp.arange(na, dtype=jnp.int32)
+    bidx = jnp.arange(b)
     decider = jnp.sum(legal, axis=-1) >= 2  # [B, N]
     # Deciders first, in agent order (stable sort on "not a decider").
     perm = jnp.argsort(~decider, axis=1, stable=True).astype(jnp.int32)  # [B, N]
@@ -161,68 +184,84 @@ def best_response_dynamics(
     a_init = jnp.where(start_ok, a_init, jnp.argmax(legal, axis=-1)).astype(jnp.int32)
     t_last = max(iterations, 1) * n - 1
 
-    def one_pass(p: jax.Array, carry: tuple) -> tuple:
-        """Position k's visit for the next ``work_batch`` of the games that need it."""
-        (act, qtab, qval, qcur, late, changes, q_init, trace), (k, order, need, sweep, update) = carry
-        idx = jax.lax.dynamic_slice(order, (p * s_batch,), (s_batch,))  # [S]; b = padding
-        gi = jnp.minimum(idx, b - 1)
-        valid = (idx < b) & need[gi]
-        w = jnp.where(valid, idx, b)  # scatter index: out of range (dropped) unless valid
-        g = perm[gi, jnp.minimum(k, n - 1)]  # [S]: the agent visited in each game
-        sidx = jnp.arange(s_batch)
-        rows = act if dense else act[gi]  # [S, N]
-        cand = jnp.broadcast_to(rows[:, None, :], (s_batch, na, n))
+    def q_rows_dense(act: jax.Array, g: jax.Array, need: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """[B, A] Q(s, a, Ã_-g) of every action: one call on all games in place (no gather)."""
+        cand = jnp.broadcast_to(act[:, None, :], (b, na, n))
         cand = jnp.where(jnp.arange(n)[None, None, :] == g[:, None, None], actions_range[None, :, None], cand)
-        sub = states if dense else jax.tree.map(lambda x: x[gi], states)
-        q = q_fn(keys if dense else keys[gi], sub, cand)  # [S, A]: Q(s, a, Ã_-g) for every action a
-        lg = legal[gi, g]  # [S, A]
+        calls = jnp.any(need).astype(jnp.int32)
+        q = jax.lax.cond(calls > 0, lambda: q_fn(keys, states, cand), lambda: jnp.zeros((b, na), jnp.float32))
+        return q, calls
+
+    def q_rows_compact(act: jax.Array, g: jax.Array, need: jax.Array, lg: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """[B, A] Q(s, a, Ã_-g) of the legal actions of the games that need this visit (0
+        elsewhere): those (game, action) pairs are gathered and simulated ``pairs`` at a time."""
+        flat = (need[:, None] & lg).reshape(-1)  # [B * A]
+        order = jnp.argsort(~flat, stable=True).astype(jnp.int32)
+        order = jnp.concatenate([order, jnp.zeros((max_passes * pairs - b * na,), jnp.int32)])  # [passes x P]
+        count = jnp.sum(flat).astype(jnp.int32)
+        calls = (count + pairs - 1) // pairs
+
+        def one_pass(p: jax.Array, q_flat: jax.Array) -> jax.Array:
+            idx = jax.lax.dynamic_slice(order, (p * pairs,), (pairs,))  # [P]
+            valid = p * pairs + jnp.arange(pairs) < count
+            ic = jnp.where(valid, idx, order[0])  # padding repeats a needed (legal) pair
+            gi, ai = ic // na, ic % na
+            joint = act[gi].at[jnp.arange(pairs), g[gi]].set(ai)  # [P, N]
+            sub = jax.tree.map(lambda x: x[gi], states)
+            q = q_fn(keys[gi], sub, joint[:, None, :])[:, 0]  # [P]
+            return q_flat.at[jnp.where(valid, ic, b * na)].set(q, mode="drop")
+
+        q_flat = jax.lax.fori_loop(0, calls, one_pass, jnp.zeros((b * na,), jnp.float32))
+        return q_flat.reshape(b, na), calls
+
+    def visit(k: jax.Array, carry: tuple) -> tuple:
+        """Decider position ``k`` of a sweep: agent ``perm[b, k]`` of every game that needs it."""
+        tables, active, sweep, update, visits, evaluated, simulated = carry
+        act, qtab, qval, qcur, late, changes, q_init, trace = tables
+        need = active & (k < n_dec)  # [B]: games whose k-th decider is visited now
+        g = perm[:, jnp.minimum(k, n - 1)]  # [B]: the agent visited in each game
+        lg = legal[bidx, g]  # [B, A]
+        q, calls = q_rows_dense(act, g, need) if dense else q_rows_compact(act, g, need, lg)
+        q = jnp.where(lg, q, 0.0)
         ql = jnp.where(lg, q, -jnp.inf)
         best = jnp.argmax(ql, axis=-1).astype(jnp.int32)
-        cur = rows[sidx, g]
-        q_cur = jnp.where(lg[sidx, cur], q[sidx, cur], -jnp.inf)
-        q_best = ql[sidx, best]
-        improve = valid & (q_best > q_cur + min_gain) & update
+        cur = act[bidx, g]
+        q_cur = jnp.where(lg[bidx, cur], q[bidx, cur], -jnp.inf)
+        q_best = ql[bidx, best]
+        improve = need & (q_best > q_cur + min_gain) & update
         q_now = jnp.where(improve, q_best, q_cur)
+        w = jnp.where(need, bidx, b)  # scatter index: out of range (dropped) unless needed
         act = act.at[w, g].set(jnp.where(improve, best, cur), mode="drop")
         qtab = qtab.at[w, g].set(q, mode="drop")
         qval = qval.at[w, g].set(True, mode="drop")
-        qcur = qcur.at[w].set(q_now, mode="drop")
-        q_init = q_init.at[w].set(jnp.where(jnp.isnan(q_init[gi]), q_cur, q_init[gi]), mode="drop")
-        late = late.at[w].set(late[gi] | (improve & (k > 0)), mode="drop")
-        changes = changes.at[w].add(improve.astype(jnp.int32), mode="drop")
+        qcur = jnp.where(need, q_now, qcur)
+        q_init = jnp.where(need & jnp.isnan(q_init), q_cur, q_init)
+        late = late | (improve & (k > 0))
+        changes = changes + improve.astype(jnp.int32)
         t = jnp.minimum(sweep * n + k, t_last)
-        trace = trace.at[t, jnp.where(update, w, b)].set(q_now, mode="drop")
-        return (act, qtab, qval, qcur, late, changes, q_init, trace), (k, order, need, sweep, update)
-
-    def visit(k: jax.Array, carry: tuple) -> tuple:
-        tables, active, sweep, update, visits, evaluated = carry
-        need = active & (k < n_dec)  # [B]: games whose k-th decider is visited now
+        trace = trace.at[t].set(jnp.where(need & update, q_now, trace[t]))
+        tables = (act, qtab, qval, qcur, late, changes, q_init, trace)
         count = jnp.sum(need).astype(jnp.int32)
-        if dense:  # one call on all games in place (no gather)
-            order = jnp.arange(b, dtype=jnp.int32)
-        else:
-            order = jnp.argsort(~need, stable=True).astype(jnp.int32)
-            order = jnp.concatenate([order, jnp.full((max_passes * s_batch - b,), b, jnp.int32)])
-        passes = (count + s_batch - 1) // s_batch
-        tables, _ = jax.lax.fori_loop(0, passes, one_pass, (tables, (k, order, need, sweep, update)))
-        return tables, active, sweep, update, visits + passes, evaluated + count
+        return tables, active, sweep, update, visits + calls, evaluated + count, simulated + calls * pairs
 
     def sweep_fn(carry: tuple) -> tuple:
         """One pass over the agents of the games still active: an update sweep while fewer
         than ``iterations`` were run, else an evaluation-only sweep (the cap was hit: refresh
         the table at the final Ã)."""
-        tables, active, sweep, visits, evaluated = carry
+        tables, active, sweep, visits, evaluated, simulated = carry
         act, qtab, qval, qcur, _, changes, q_init, trace = tables
         update = sweep < iterations
         tables = (act, qtab, qval, qcur, jnp.zeros((b,), bool), changes, q_init, trace)
         max_dec = jnp.max(jnp.where(active, n_dec, 0))
-        tables, _, _, _, visits, evaluated = jax.lax.fori_loop(0, max_dec, visit, (tables, active, sweep, update, visits, evaluated))
+        tables, _, _, _, visits, evaluated, simulated = jax.lax.fori_loop(
+            0, max_dec, visit, (tables, active, sweep, update, visits, evaluated, simulated)
+        )
         # A game is done when its sweep changed nothing, or only its first decider changed
         # (every row was then computed at the final Ã, which is a fixed point), or after the
         # evaluation sweep; a further sweep would repeat the same Q rows and change nothing.
         late = tables[4]  # a decider after the first switched in this sweep
         active = active & update & late
-        return tables, active, sweep + update.astype(jnp.int32), visits, evaluated
+        return tables, active, sweep + update.astype(jnp.int32), visits, evaluated, simulated
 
     tables = (
         a_init,
@@ -235,8 +274,8 @@ def best_response_dynamics(
         jnp.full((max(iterations, 1) * n, b), jnp.nan, jnp.float32),
     )
     zero = jnp.zeros((), jnp.int32)
-    carry = jax.lax.while_loop(lambda c: jnp.any(c[1]), sweep_fn, (tables, n_dec > 0, zero, zero, zero))
-    (act, qtab, qval, qcur, _, changes, q_init, trace), _, sweep, visits, evaluated = carry
+    carry = jax.lax.while_loop(lambda c: jnp.any(c[1]), sweep_fn, (tables, n_dec > 0, zero, zero, zero, zero))
+    (act, qtab, qval, qcur, _, changes, q_init, trace), _, sweep, visits, evaluated, simulated = carry
     return BRDResult(
         actions=act,
         q=qtab,
@@ -248,4 +287,5 @@ def best_response_dynamics(
         trace=trace,
         visits=visits,
         evaluated=evaluated,
+        simulated=simulated,
     )

@@ -98,6 +98,11 @@ class HybridConfig(TrainConfig):
     total_episodes: int = 20_000
     """Training episodes of Alg. 2 (the paper does not state its budget; Fig. 3 plots training
     curves over episodes)."""
+    time_limit_min: float = 0.0
+    """Also stop Alg. 2 at the first chunk boundary after this many minutes of the run's wall
+    time (set-up and pre-training included; with ``--resume``, the earlier processes' time
+    too), then checkpoint and evaluate as usual. 0: no limit. For budgets such as "3 hours";
+    a run cut by the clock is not reproducible in its episode count."""
     num_envs: int = 32
     """Games played in parallel (the batch of Alg. 1 and of the actor's SGD step)."""
     chunk_steps: int = 8
@@ -123,13 +128,14 @@ class HybridConfig(TrainConfig):
     by more than this (in units of the normalised return; one Marine shot at m5v5 is 0.03).
     0: the paper's plain argmax. A margin keeps near-ties at the start action, so Ã changes
     the start policy only where it matters and is a cleaner target for the actor."""
-    brd_work_batch: int = 16
-    """Games per simulation call inside Alg. 1 (an implementation choice; it does not change Ã).
-    Each visit of Alg. 1 simulates only the games that still need it, this many at a time; 0:
-    all ``num_envs`` games in every call (the dense schedule, which a GPU may prefer). On a CPU,
-    at m5v5 with 128 games of a trained actor and the ``quick-lookahead`` Q, 16 makes one call
-    of Alg. 1 2.8-4.6x faster than 0 (``python bench/brd_schedule.py --checkpoint ...``; README,
-    "Speed")."""
+    brd_work_batch: int = 2
+    """Alg. 1's simulation batch: each call simulates ``brd_work_batch x |A|`` candidate joint
+    actions (an implementation choice; it does not change Ã). Each visit of Alg. 1 gathers the
+    legal (game, action) pairs of the games that still need it and simulates only those; 0: all
+    ``num_envs`` games x all |A| actions in every call (the dense schedule, which a GPU may
+    prefer). On a CPU with the ``quick-lookahead`` Q, 2 makes one call of Alg. 1 4-7x faster
+    than session 8's schedule (16 games per call) at m18v20, and about as fast at m5v5
+    (``python bench/brd_schedule.py --checkpoint ...``; README, "Speed")."""
     lookahead_steps: int = 1
     """Forward simulation per Q estimate in Alg. 1. 1: the paper's one-step simulation,
     Q = r + λ V(s') (Eq. 2, Section 4.2). K > 1 (an extension): the continuation policy (the
@@ -259,8 +265,8 @@ def _quick_lookahead(env: str) -> HybridConfig:
     Alg. 1's ã_g with 4 steps per env step (``actor_target="best"``, ``actor_steps=4``) for
     3,000 episodes, and the run's policy is the actor's weight average from episode 1,500 on
     (``actor_average_from=1500``), evaluated every 150 episodes. m5v5 against D's 0.39 on 500
-    states (``eval --n 500 --seed 3``): see the README's "Results" for every seed; about 21
-    CPU-min. Traffic Junction keeps K = 4, Eq. 8, the actor as continuation, 32 games and 1,500
+    states (``eval --n 500 --seed 3``): see the README's "Results" for every seed; about 10
+    CPU-min (seed 0, session 9). Traffic Junction keeps K = 4, Eq. 8, the actor as continuation, 32 games and 1,500
     episodes (failure 0.176 against D's 0.959)."""
     base = dataclasses.replace(_quick(env), lookahead_steps=4)
     if env == "traffic_junction":
@@ -403,8 +409,8 @@ class Learner:
         (``actor``: the actor's legal argmax; ``demonstrator``: A^D, the script or the clone)."""
         task, mod = self.task, self.actor_mod
 
-        def step_fn(key, state, actions):
-            _, s2, r, d, _ = task.step(key, state, actions)
+        def batch_step_fn(keys, states, actions):
+            _, s2, r, d, _ = task.batch_step(keys, states, actions)
             return r, s2, d
 
         def policy(keys, flat_states):
@@ -415,7 +421,7 @@ class Learner:
             return nets.actor_actions(mod, actor if continuation == "actor" else clone_vars, fobs, flegal)
 
         value_fn = self.value_fn(critic_vars) if lookahead < TO_THE_END else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
-        return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, step_fn=step_fn, policy_fn=policy)
+        return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, policy_fn=policy, batch_step_fn=batch_step_fn)
 
     def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, online: bool, min_gain: float, act_before_update: bool, work_batch: int):
         task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
@@ -462,6 +468,7 @@ class Learner:
                 "actor_loss": loss,
                 "brd_sweeps": res.sweeps.astype(jnp.float32),
                 "brd_visits": res.evaluated.astype(jnp.float32) / b,
+                "brd_simulated": res.simulated.astype(jnp.float32) / b,
                 "brd_changes": jnp.mean(res.changes.astype(jnp.float32)),
                 "q_gain": jnp.nanmean(res.q_final - res.q_init),
                 "q_final": jnp.nanmean(res.q_final),
@@ -722,6 +729,7 @@ def train(cfg: HybridConfig) -> int:
 
     t_phase = time.time()
     steps_at_start = st.env_steps
+    time_limited = False
     try:
         while st.phase == "joint" and st.episodes < cfg.total_episodes:
             t0 = time.time()
@@ -781,6 +789,9 @@ def train(cfg: HybridConfig) -> int:
             if st.episodes >= next_ckpt:
                 save()
                 next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
+            if cfg.time_limit_min > 0 and clock.elapsed()["wall_s"] >= 60.0 * cfg.time_limit_min:
+                time_limited = True
+                break
     except TrainingDiverged as e:
         prog.close()
         log.close()
@@ -790,6 +801,8 @@ def train(cfg: HybridConfig) -> int:
         return 3
     prog.close()
     save()
+    if time_limited:
+        print(f"time limit of {cfg.time_limit_min:g} min reached after {st.episodes} episodes: stopping Alg. 2 there")
     train_s = time.time() - t_phase
     sps = (st.env_steps - steps_at_start) / max(train_s, 1e-9)
 
@@ -799,7 +812,7 @@ def train(cfg: HybridConfig) -> int:
         result["last_actor"] = evaluate(_vars(st.actor), FINAL_EVAL_SEED)
         result["average_of"] = st.average_count
     result.update(
-        enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes,
+        enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, time_limited=time_limited,
         env_steps_per_s=sps, **clock.elapsed(),
     )
     best = E.evaluate_best(run_dir, lambda v: evaluate(v, FINAL_EVAL_SEED))

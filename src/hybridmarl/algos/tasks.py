@@ -164,6 +164,15 @@ class Task:
         obs, s2, r, d, info = self.env.step(key, state, actions, self.params)
         return obs.reshape((self.num_agents, -1)), s2, r, d, info
 
+    def batch_step(self, keys: jax.Array, states: Any, actions: jax.Array, sub_batch: int | None = None):
+        """``jax.vmap(step)`` over a batch (same results). Combat uses ``Combat.batch_step``,
+        which advances only the games that owe enemy-only turns (``sub_batch`` at a time)
+        instead of the whole batch in lockstep with its slowest game."""
+        if hasattr(self.env, "batch_step"):
+            obs, s2, r, d, info = self.env.batch_step(keys, states, actions, self.params, sub_batch=sub_batch)
+            return obs.reshape((obs.shape[0], self.num_agents, -1)), s2, r, d, info
+        return jax.vmap(self.step)(keys, states, actions)
+
     def observe(self, state: Any) -> jax.Array:
         return self.env.observe(state).reshape((self.num_agents, -1))
 
