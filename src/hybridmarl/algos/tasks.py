@@ -164,12 +164,12 @@ class Task:
         obs, s2, r, d, info = self.env.step(key, state, actions, self.params)
         return obs.reshape((self.num_agents, -1)), s2, r, d, info
 
-    def batch_step(self, keys: jax.Array, states: Any, actions: jax.Array, sub_batch: int | None = None):
+    def batch_step(self, keys: jax.Array, states: Any, actions: jax.Array):
         """``jax.vmap(step)`` over a batch (same results). Combat uses ``Combat.batch_step``,
-        which advances only the games that owe enemy-only turns (``sub_batch`` at a time)
-        instead of the whole batch in lockstep with its slowest game."""
+        which advances only the games that owe enemy-only turns instead of the whole batch in
+        lockstep with its slowest game."""
         if hasattr(self.env, "batch_step"):
-            obs, s2, r, d, info = self.env.batch_step(keys, states, actions, self.params, sub_batch=sub_batch)
+            obs, s2, r, d, info = self.env.batch_step(keys, states, actions, self.params)
             return obs.reshape((obs.shape[0], self.num_agents, -1)), s2, r, d, info
         return jax.vmap(self.step)(keys, states, actions)
 
