@@ -1,6 +1,6 @@
 """Alg. 1's work schedule: the cost of one call for several ``--work-batch`` values, in one process.
 
-Builds the hybrid learner of a preset (default ``quick-lookahead``: the preset's own Q estimate),
+Builds the hybrid learner of a preset (default ``quick``: the preset's own Q estimate),
 plays B games for ``--warm-steps`` steps with the actor (a trained one with ``--checkpoint
 RUN_DIR/checkpoints/ckpt_N``: its actor and critic are loaded; otherwise random weights), and times
 ``best_response_dynamics`` from the actor's actions on those states for each work batch (0: all B
@@ -42,7 +42,7 @@ from hybridmarl.algos.tasks import make_task, unflatten_named
 def main() -> None:
     p = argparse.ArgumentParser(description="Alg. 1's work schedule: one call's cost for several work batches.")
     p.add_argument("--scenario", default="m5v5")
-    p.add_argument("--preset", default="quick-lookahead")
+    p.add_argument("--preset", default="quick")
     p.add_argument("--checkpoint", help="a checkpoint directory whose actor and critic to load")
     p.add_argument("--work-batches", type=int, nargs="+", default=[0, 16, 8, 4, 2, 1])
     p.add_argument("--state-sets", type=int, default=3)

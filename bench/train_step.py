@@ -8,7 +8,7 @@ chunk (``chunk``, per step), the host-side episode assembly and buffer insertion
 (``host``), and one critic refit (``critic_fit``, per SGD step). Prints one JSON object.
 
     python bench/train_step.py [--scenario m5v5] [--preset quick] [--env combat] [--repeats 3]
-    python bench/train_step.py --preset quick-lookahead [--lookahead-policy demonstrator]
+    python bench/train_step.py --preset quick-paper        # the paper's one-step Alg. 1
 """
 
 from __future__ import annotations

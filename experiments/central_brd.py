@@ -7,7 +7,7 @@ start states. If Ã does not beat A^D, no actor trained on it can; if it does, t
 Ã and the trained actor is the actor's to close. The Q estimate of Alg. 1 is one of:
 
 - ``--q critic --lookahead 1``: the paper's Eq. 2, ``r + λ V(s')`` with a critic pre-trained on
-  the demonstrator's returns (Eq. 3; the quick preset's sample count and fit steps by default);
+  the demonstrator's returns (Eq. 3; the quick-paper preset's sample count and fit steps by default);
 - ``--q critic --lookahead K``: K simulated steps of A^D, then the critic (the
   ``--lookahead-steps K`` option of ``hybridmarl train``);
 - ``--q exact``: A^D simulated to the end of the episode (``--lookahead-steps 0``).
@@ -54,15 +54,15 @@ def main() -> None:
     ap.add_argument("--iterations", type=int, default=7, help="Alg. 1 iterations (paper: 7)")
     ap.add_argument("--min-gain", type=float, default=0.0, help="switch only for a larger gain (0: argmax)")
     ap.add_argument("--games", type=int, default=64, help="games played by each policy")
-    ap.add_argument("--pretrain-samples", type=int, default=None, help="critic pairs (default: the quick preset's)")
-    ap.add_argument("--fit-steps", type=int, default=None, help="critic SGD steps (default: the quick preset's)")
+    ap.add_argument("--pretrain-samples", type=int, default=None, help="critic pairs (default: the quick-paper preset's)")
+    ap.add_argument("--fit-steps", type=int, default=None, help="critic SGD steps (default: the quick-paper preset's)")
     ap.add_argument("--holdout", type=int, default=4000, help="held-out pairs to measure the critic's error")
     ap.add_argument("--max-steps", type=int, default=400, help="step cap per game (combat)")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
 
     demo_name = args.demonstrator or ("attack-closest" if args.env == "combat" else "always-gas")
-    base = H.PRESETS["quick"](args.env)
+    base = H.PRESETS["quick-paper"](args.env)
     cfg = dataclasses.replace(
         base, scenario=args.scenario, enemy=args.enemy, demonstrator=demo_name, seed=args.seed,
         pretrain_samples=args.pretrain_samples or base.pretrain_samples,

@@ -6,6 +6,7 @@ combat m3v3 from the attack-closest script), the
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
@@ -127,8 +128,16 @@ def test_every_preset_builds_and_round_trips_through_config_json():
                 assert cfg.env == ("traffic_junction" if name == "traffic-junction" else env), (algo, name, env)
                 assert config_from_dict(type(cfg), config_to_dict(cfg)) == cfg, (algo, name, env)
     hybrid = algo_module("hybrid").PRESETS
-    combat, tj = hybrid["quick-lookahead"]("combat"), hybrid["quick-lookahead"]("traffic_junction")
+    combat, tj = hybrid["quick"]("combat"), hybrid["quick"]("traffic_junction")
+    assert hybrid["quick-lookahead"]("combat") == combat  # the old name of ``quick`` keeps working
     assert (combat.lookahead_steps, combat.actor_target, combat.actor_steps, combat.total_episodes) == (8, "best", 4, 3000)
     assert (combat.lookahead_policy, combat.num_envs, combat.actor_average_from) == ("demonstrator", 128, 1500)
     assert (tj.lookahead_steps, tj.actor_target, tj.total_episodes) == (4, "advantage", 1_500)
-    assert hybrid["quick"]("combat").lookahead_steps == 1  # the paper's one-step Q stays the default
+    paper_quick = hybrid["quick-paper"]("combat")  # the paper's method at a small budget
+    assert (paper_quick.lookahead_steps, paper_quick.actor_target, paper_quick.actor_average_from) == (1, "advantage", None)
+    assert hybrid["paper"]("combat").lookahead_steps == 1  # the paper's one-step Q stays the field default
+    for env in ("combat", "traffic_junction"):  # Table 2's "w/o D": the same recipe with no demonstrator in it
+        wo = hybrid["quick-wo-d"](env)
+        assert (wo.pretrain_critic, wo.brd_start, wo.lookahead_policy) == (False, "actor", "start")
+        full = hybrid["quick"](env)
+        assert dataclasses.replace(wo, pretrain_critic=True, lookahead_policy=full.lookahead_policy) == full

@@ -50,10 +50,11 @@ class QuickstartConfig:
     """Enemy script, for training and evaluation. Default: the paper's cross-validation (a model
     learned from c fights w, and vice versa)."""
     preset: str = "quick"
-    """Training preset of ``hybridmarl train --algo hybrid``: ``quick`` (the paper's method,
-    minutes on a CPU) or ``quick-lookahead`` (an extension, the recipe of our best runs: W
-    0.89-0.93 over four seeds against D's 0.44 on the same states in 21-23 CPU-minutes, about
-    10 since session 9's faster Alg. 1; README, "Results")."""
+    """Training preset of ``hybridmarl train --algo hybrid``: ``quick`` (the recipe of our best
+    CPU runs, the paper's method with extensions: W 0.88-0.93 of 100 battles over seven seeds
+    against D's 0.44 on the same states, 10-13 CPU-minutes since session 9; README, "Results")
+    or ``quick-paper`` (the paper's own method at a small budget, about 6 minutes; it does not
+    beat D at this budget)."""
     seed: int = 0
     """Seed of training and of the evaluation's start states."""
     n: int = 100

@@ -4,8 +4,8 @@ Modules:
 
 - ``hybrid``: the method, top to bottom (Phase 1 demonstrator, Phase 2 critic pre-training
   Eq. 3, Phase 3 joint update Alg. 2 with Alg. 1 / Eq. 7 / Eq. 8, Phase 4 evaluation), its
-  config (``HybridConfig``) and presets (``paper``, ``quick``, ``traffic-junction``, ``wo-d``,
-  ``quick-wo-d``, ``quick-rollout``, ``quick-lookahead``, ``toy``);
+  config (``HybridConfig``) and presets (``paper``, ``quick``, ``quick-paper``, ``traffic-junction``,
+  ``wo-d``, ``quick-wo-d``, ``quick-rollout``, ``toy``; ``quick-lookahead`` is ``quick``'s old name);
 - ``bc``: behavioural cloning (the paper's BC baseline and its θ^D);
 - ``brd``: Alg. 1, best-response dynamics, batched over games under ``jit``;
 - ``losses``: returns (Eq. 1), critic loss (Eq. 3), advantage (Eq. 7), actor loss (Eq. 8), BC loss;

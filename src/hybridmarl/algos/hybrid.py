@@ -26,7 +26,8 @@ its returns, and Alg. 1 starts from that same policy), and it needs no demonstra
 2 (so "w/o D" and the full method share one code path). ``--brd-start demonstrator`` starts every
 Alg. 1 call from the original A^D instead (Alg. 1's "Input: ... demonstration actions").
 
-Extensions, all off by default (the ``paper`` and ``quick`` presets are the paper's method):
+Extensions, all off by default (the ``paper`` and ``quick-paper`` presets are the paper's method;
+the ``quick`` preset turns on the ones of our best CPU recipe):
 ``lookahead_steps`` (K-step or exact simulation instead of Eq. 2's one step), ``brd_min_gain``
 (Alg. 1 switches only for a gain above a margin), ``actor_init = "clone"`` (the actor starts
 from θ^D), ``actor_target = "best"`` (cross-entropy toward Alg. 1's ã_g instead of Eq. 8),
@@ -133,7 +134,7 @@ class HybridConfig(TrainConfig):
     actions (an implementation choice; it does not change Ã). Each visit of Alg. 1 gathers the
     legal (game, action) pairs of the games that still need it and simulates only those; 0: all
     ``num_envs`` games x all |A| actions in every call (the dense schedule, which a GPU may
-    prefer). On a CPU with the ``quick-lookahead`` Q, 2 makes one call of Alg. 1 4-7x faster
+    prefer). On a CPU with the ``quick`` preset's Q, 2 makes one call of Alg. 1 4-7x faster
     than session 8's schedule (16 games per call) at m18v20, and about as fast at m5v5
     (``python bench/brd_schedule.py --checkpoint ...``; README, "Speed")."""
     lookahead_steps: int = 1
@@ -147,7 +148,7 @@ class HybridConfig(TrainConfig):
     end with ``lookahead_steps=0``): ``start`` (the default) the policy Alg. 1 starts from
     (``brd_start``), or explicitly the current ``actor`` or the ``demonstrator`` A^D. With the
     actor, its network runs on every simulated state, which is most of the cost of a lookahead
-    step (``python bench/train_step.py --preset quick-lookahead``); a script demonstrator costs
+    step (``python bench/train_step.py --preset quick``); a script demonstrator costs
     a fraction of that."""
     clone_script: bool = False
     """Paper-exact A^D for a script demonstrator: record ``demo_observations`` from it and use
@@ -228,9 +229,11 @@ def _paper(env: str) -> HybridConfig:
     return HybridConfig(env=env)
 
 
-def _quick(env: str) -> HybridConfig:
-    """Minutes on a CPU: the paper's method at a small budget (fewer pre-training samples and
-    episodes, more frequent critic refits, Adam instead of SGD for faster progress)."""
+def _quick_paper(env: str) -> HybridConfig:
+    """``quick-paper``: the paper's method (one-step Q of Eq. 2, Eq. 8, the last actor) at a
+    small budget: fewer pre-training samples and episodes, more frequent critic refits, Adam
+    instead of SGD for faster progress. At m5v5 it does not beat its demonstrator (README,
+    "Results"); ``quick`` adds the extensions that do. It was called ``quick`` before session 10."""
     base = _paper(env)
     if env == "traffic_junction":
         return dataclasses.replace(
@@ -250,25 +253,27 @@ def _quick_rollout(env: str) -> HybridConfig:
     end of the episode (``lookahead_steps=0``: exact Q^D, the "ideal condition" of Eq. 6)
     instead of r + λ V(s'); one best-response iteration. No critic is needed."""
     return dataclasses.replace(
-        _quick(env), lookahead_steps=0, brd_start="demonstrator", brd_iterations=1,
+        _quick_paper(env), lookahead_steps=0, brd_start="demonstrator", brd_iterations=1,
         total_episodes=400 if env == "combat" else 300, num_envs=16, checkpoint_every=100,
         pretrain_critic=False,
     )
 
 
-def _quick_lookahead(env: str) -> HybridConfig:
-    """An extension, not the paper's setting: the recipe of our best CPU runs (README,
-    "Results"). Alg. 1's Q simulates K steps before the critic bootstraps (``lookahead_steps``).
-    Combat: K = 8, the 7 continuation steps played by the demonstrator script
-    (``lookahead_policy="demonstrator"``: an 8-step Q^D, several times cheaper per step than
-    the actor's network), 128 games in parallel, the actor trained by cross-entropy toward
-    Alg. 1's ã_g with 4 steps per env step (``actor_target="best"``, ``actor_steps=4``) for
-    3,000 episodes, and the run's policy is the actor's weight average from episode 1,500 on
-    (``actor_average_from=1500``), evaluated every 150 episodes. m5v5 against D's 0.39 on 500
-    states (``eval --n 500 --seed 3``): see the README's "Results" for every seed; about 10
-    CPU-min (seed 0, session 9). Traffic Junction keeps K = 4, Eq. 8, the actor as continuation, 32 games and 1,500
-    episodes (failure 0.176 against D's 0.959)."""
-    base = dataclasses.replace(_quick(env), lookahead_steps=4)
+def _quick(env: str) -> HybridConfig:
+    """``quick``, minutes on a CPU: the recipe of our best CPU runs (README, "Results"). Not the
+    paper's setting: ``quick-paper`` plus extensions. Alg. 1's Q simulates K steps before the
+    critic bootstraps (``lookahead_steps``). Combat: K = 8, the 7 continuation steps played by
+    the demonstrator script (``lookahead_policy="demonstrator"``: an 8-step Q^D, several times
+    cheaper per step than the actor's network), 128 games in parallel, the actor trained by
+    cross-entropy toward Alg. 1's ã_g with 4 steps per env step (``actor_target="best"``,
+    ``actor_steps=4``) for 3,000 episodes, and the run's policy is the actor's weight average
+    from episode 1,500 on (``actor_average_from=1500``), evaluated every 150 episodes. m5v5,
+    c vs w: W 0.88-0.93 of 100 battles over seven seeds against D's 0.44, in 10-23 CPU-min;
+    m18v20 needs ``--brd-start demonstrator`` (the actor start stalls into draws). Traffic
+    Junction keeps K = 4, Eq. 8, the actor as continuation, 32 games and 1,500 episodes
+    (failure 0.176 against D's 0.959). Called ``quick-lookahead`` before session 10 (that name
+    still works)."""
+    base = dataclasses.replace(_quick_paper(env), lookahead_steps=4)
     if env == "traffic_junction":
         return base
     return dataclasses.replace(
@@ -280,7 +285,7 @@ def _quick_lookahead(env: str) -> HybridConfig:
 def _toy(env: str) -> HybridConfig:
     """Seconds: a smoke test of the whole pipeline (tests, CI). Tiny networks, no learning."""
     return dataclasses.replace(
-        _quick(env), total_episodes=8, num_envs=4, chunk_steps=4, pretrain_samples=64, buffer_size=512,
+        _quick_paper(env), total_episodes=8, num_envs=4, chunk_steps=4, pretrain_samples=64, buffer_size=512,
         critic_pretrain_steps=10, critic_update_steps=5, e_update=4, brd_iterations=2,
         actor_hidden=(16, 16, 16), critic_hidden=(16, 8, 8), checkpoint_every=4, eval_episodes=8,
         bc_steps=20, demo_observations=64, tensorboard=False,
@@ -289,7 +294,8 @@ def _toy(env: str) -> HybridConfig:
 
 def _without_d(make):
     def preset(env: str) -> HybridConfig:
-        return dataclasses.replace(make(env), pretrain_critic=False, brd_start="actor")
+        # No demonstrator after Phase 1 either: Alg. 1 starts from, and its look-ahead is played by, the actor.
+        return dataclasses.replace(make(env), pretrain_critic=False, brd_start="actor", lookahead_policy="start")
 
     return preset
 
@@ -297,11 +303,12 @@ def _without_d(make):
 PRESETS = {
     "paper": _paper,
     "quick": _quick,
+    "quick-paper": _quick_paper,
     "traffic-junction": lambda env: _paper("traffic_junction"),
     "wo-d": _without_d(_paper),
-    "quick-wo-d": _without_d(_quick),
+    "quick-wo-d": _without_d(_quick),  # Table 2's "w/o D" beside ``quick``: the same recipe
     "quick-rollout": _quick_rollout,
-    "quick-lookahead": _quick_lookahead,
+    "quick-lookahead": _quick,  # the name of ``quick`` before session 10
     "toy": _toy,
 }
 
