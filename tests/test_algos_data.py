@@ -371,3 +371,12 @@ def test_time_limit_stops_alg2_and_still_evaluates(tmp_path, capsys):
     assert meta["episodes"] < 10_000 and meta["iterations"] == 1  # one chunk of Alg. 2
     res = json.loads((tmp_path / "run" / "eval.json").read_text())
     assert res["time_limited"] is True and res["episodes"] == meta["episodes"] and "failure_rate" in res
+
+
+def test_progress_status_before_and_after_the_first_episode():
+    from hybridmarl.algos.logger import recent_status
+
+    assert recent_status({"won": float("nan")}, "won", "terminal_hp_reward") == "won@100 -  terminal_hp_reward@100 -"
+    assert recent_status({"won": 0.25, "terminal_hp_reward": -0.1}, "won", "terminal_hp_reward") == (
+        "won@100 0.25  terminal_hp_reward@100 -0.100"
+    )

@@ -585,7 +585,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     from hybridmarl.algos import evaluate as E
     from hybridmarl.algos import plots
     from hybridmarl.algos.hybrid import _best_line, _result_line
-    from hybridmarl.algos.logger import Progress, RunLogger
+    from hybridmarl.algos.logger import Progress, RunLogger, recent_status
 
     clock = RunClock()
     spec = cfg.task_spec()
@@ -729,7 +729,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
             log.train.write([row])
             log.scalars(st.episodes, row)
             log.episodes.write([{"episode": first_ep + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}} for i in range(n_new)])
-            prog.update(st.episodes, f"{primary}@100 {recent.get(primary, float('nan')):.2f}  {secondary}@100 {recent.get(secondary, float('nan')):+.3f}  loss {terms[0]:.4f}")
+            prog.update(st.episodes, f"{recent_status(recent, primary, secondary)}  loss {terms[0]:.4f}")
             periodic.maybe_run(st.episodes, lambda off: evaluate(_variables(st.q), off), lambda: prefixed(flatten_named(st.q), "actor"), ckpt_meta())
             if st.episodes >= next_ckpt:
                 save()

@@ -625,7 +625,7 @@ def train(cfg: HybridConfig) -> int:
     from hybridmarl.algos import demos as D
     from hybridmarl.algos import evaluate as E
     from hybridmarl.algos import plots
-    from hybridmarl.algos.logger import Progress, RunLogger
+    from hybridmarl.algos.logger import Progress, RunLogger, recent_status
 
     # ---- Phase 0: set-up ------------------------------------------------------------------------
     clock = RunClock()
@@ -790,7 +790,7 @@ def train(cfg: HybridConfig) -> int:
                 {"episode": first_ep + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}}
                 for i in range(n_new)
             ])
-            status = f"{primary}@100 {recent.get(primary, float('nan')):.2f}  {secondary}@100 {recent.get(secondary, float('nan')):+.3f}  critic {st.critic_loss:.4f}"
+            status = f"{recent_status(recent, primary, secondary)}  critic {st.critic_loss:.4f}"
             prog.update(st.episodes, status)
             periodic.maybe_run(st.episodes, lambda off: evaluate(st.policy_vars(), off), actor_arrays, ckpt_meta())
             if st.episodes >= next_ckpt:

@@ -125,6 +125,17 @@ def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def recent_status(recent: dict[str, float], primary: str, secondary: str) -> str:
+    """The live part of the progress line: the two headline metrics over the last 100 episodes,
+    ``-`` until the first episode has finished (rather than ``nan``, which reads as a failure)."""
+
+    def fmt(name: str, spec: str) -> str:
+        v = recent.get(name, float("nan"))
+        return f"{name}@100 {'-' if not math.isfinite(v) else format(v, spec)}"
+
+    return f"{fmt(primary, '.2f')}  {fmt(secondary, '+.3f')}"
+
+
 class Progress:
     """A rich progress bar on a terminal; a plain line every ``every_s`` seconds otherwise."""
 
