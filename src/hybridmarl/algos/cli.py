@@ -120,7 +120,10 @@ class EvalConfig:
     actor's weight average where the run keeps one, ``--actor-average-from``, else the actor);
     ``average``: the average (exit 2 without one); ``last``: the last actor itself."""
     script: str | None = None
-    """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D)."""
+    """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D), or,
+    in combat, a search player as in ``hybridmarl battle --p0`` (``uct:script=attack-closest``
+    is the paper's UCT_c, ``abcd:script=attack-closest`` its A-B_c, ``pgs`` its "Profile";
+    Table 1): the same start states, played turn by turn on the host."""
     env: str | None = None
     """With --script: the environment (default combat)."""
     scenario: str | None = None
@@ -207,6 +210,17 @@ def run_eval(cfg: EvalConfig) -> int:
             if (task.num_agents, task.num_actions, task.obs_dim) != (make_task(bundle.spec).num_agents, make_task(bundle.spec).num_actions, make_task(bundle.spec).obs_dim):
                 raise errors[0](f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes")
             res = E.evaluate_task(task, bundle.module, bundle.variables, n=cfg.n, seed=cfg.seed)
+        elif cfg.script is not None and E.is_search_spec(cfg.script):
+            # A search player (Table 1's UCT_c, A-B_c, Profile) on the same start states as a script.
+            from hybridmarl.search import make_player
+
+            if task.kind != "combat":
+                raise errors[0]("search players (uct, abcd, pgs) play combat only")
+            try:
+                make_player(cfg.script)
+            except ValueError as e:
+                raise errors[0](str(e).splitlines()[0]) from None
+            res = E.evaluate_player(task, cfg.script, n=cfg.n, seed=cfg.seed, progress=True)
         else:
             assert cfg.script is not None
             res = E.evaluate_task(task, None, None, n=cfg.n, seed=cfg.seed, script=canonical_script(task.kind, cfg.script))

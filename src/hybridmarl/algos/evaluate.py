@@ -294,6 +294,59 @@ def evaluate_task(
     return summarize(task, ep)
 
 
+def is_search_spec(spec: str) -> bool:
+    """True when ``spec`` names a search player (``uct``, ``abcd:time_ms=0,nodes=500``, ``pgs``,
+    ...), whether or not its options are valid (``search.make_player`` checks those)."""
+    from hybridmarl.search.base import _NAME_ALIASES
+
+    return spec.split(":", 1)[0].strip().lower().replace("_", "-") in _NAME_ALIASES
+
+
+def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, progress: bool = False) -> dict[str, Any]:
+    """The protocol for any engine player as our side of a combat task, above all the search
+    players of Table 1 (``uct:script=attack-closest`` is the paper's UCT_c, ``abcd:...`` its
+    A-B_c, ``pgs`` its "Profile"). The start states are exactly those of ``evaluate_task`` with
+    the same ``n`` and ``seed``; each battle is played by the host loop of ``search.runner``
+    (the player decides between compiled engine turns, with the global state, as in the
+    paper) against the task's enemy script, under the env's own rules. W, R and the draws are
+    computed from the final states as the env computes them. Battle ``i`` seeds the players
+    with ``seed + i``."""
+    from hybridmarl.search import make_player
+    from hybridmarl.search.runner import play_game_with_players
+
+    if task.kind != "combat":
+        raise ValueError("search players play combat only")
+    env = task.env
+    k_reset, _ = jax.random.split(jax.random.key(seed))
+    _, states = jax.jit(jax.vmap(task.reset))(jax.random.split(k_reset, n))
+    ours, enemy = make_player(player), make_player(task.spec.enemy)
+    ep: dict[str, list[float]] = {k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")}
+    ms: list[float] = []  # wall-clock time of each of our decisions
+    bar = None
+    if progress:
+        from hybridmarl.algos.logger import Progress
+
+        bar = Progress(n, f"{player} vs {task.spec.enemy}", every_s=30.0)
+    for i in range(n):
+        start = jax.tree.map(lambda a, i=i: a[i], states)
+        g = play_game_with_players(start.game, env.rules, ours, enemy, seed=seed + i)
+        hp = np.maximum(np.asarray(g.final_state.hp), 0).sum(axis=1)
+        norm = max(int(start.init_hp[0]), 1)
+        ep["won"].append(float(g.winner == 0))
+        ep["lost"].append(float(g.winner == 1))
+        ep["draw"].append(float(g.winner not in (0, 1)))
+        ep["terminal_hp_reward"].append(float(np.float32(hp[0] - hp[1]) / np.float32(norm)))
+        ep["steps"].append(float(len(g.decisions[0])))
+        ms += [d.ms for d in g.decisions[0]]
+        if bar is not None:
+            bar.update(i + 1, f"W {np.mean(ep['won']):.2f}")
+    if bar is not None:
+        bar.close()
+    out = summarize(task, {k: np.asarray(v) for k, v in ep.items()})
+    out["ms_per_decision"] = float(np.mean(ms)) if ms else None
+    return out
+
+
 @functools.lru_cache(maxsize=16)
 def _actor_policy_cached(spec: tuple[tuple[int, ...], int]):
     return actor_policy(nets.from_spec(spec))
