@@ -790,7 +790,8 @@ def train(cfg: HybridConfig) -> int:
                 {"episode": first_ep + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}}
                 for i in range(n_new)
             ])
-            status = f"{recent_status(recent, primary, secondary)}  critic {st.critic_loss:.4f}"
+            critic = "-" if np.isnan(st.critic_loss) else f"{st.critic_loss:.4f}"  # '-': not fitted yet (w/o D)
+            status = f"{recent_status(recent, primary, secondary)}  critic {critic}"
             prog.update(st.episodes, status)
             periodic.maybe_run(st.episodes, lambda off: evaluate(st.policy_vars(), off), actor_arrays, ckpt_meta())
             if st.episodes >= next_ckpt:
