@@ -297,19 +297,20 @@ def test_eval_protocol_with_a_search_player(capsys):
     from hybridmarl.cli import main
 
     task = make_task(TaskSpec(env="combat", scenario="m3v4", enemy="attack-weakest"))  # 4 slots, as above
-    by_env = E.evaluate_task(task, None, None, n=6, seed=3, script="attack-closest")
-    by_host = E.evaluate_player(task, "attack-closest", n=6, seed=3)
+    by_env = E.evaluate_task(task, None, None, n=4, seed=3, script="attack-closest")
+    by_host = E.evaluate_player(task, "attack-closest", n=4, seed=3)
     for k in ("W", "W_ci95", "R", "R_ci95", "losses", "draws"):
         assert by_host[k] == pytest.approx(by_env[k], abs=1e-6), (k, by_host[k], by_env[k])
     assert E.is_search_spec("uct:script=attack-closest") and E.is_search_spec("PGS") and not E.is_search_spec("nokdps")
 
-    argv = ["eval", "--script", f"{UCT},script=attack-closest", "--scenario", "m3v4", "--n", "2", "--seed", "0", "--json"]
+    # The module's UCT spec, so its compiled search program is shared with the tests above.
+    argv = ["eval", "--script", UCT, "--scenario", "m3v4", "--n", "2", "--seed", "0", "--json"]
     runs = []
     for _ in range(2):
         assert main(argv) == 0
         runs.append(json.loads(capsys.readouterr().out.strip().splitlines()[-1]))
     assert runs[0]["W"] == runs[1]["W"] and runs[0]["R"] == runs[1]["R"] and runs[0]["n"] == 2
-    assert runs[0]["policy"] == f"script:{UCT},script=attack-closest" and runs[0]["ms_per_decision"] > 0
+    assert runs[0]["policy"] == f"script:{UCT}" and runs[0]["ms_per_decision"] > 0
     assert main(["eval", "--script", "uct:nope=1", "--scenario", "m3v4", "--n", "2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nope" in err[0], err
