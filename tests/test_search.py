@@ -316,3 +316,5 @@ def test_eval_protocol_with_a_search_player(capsys):
     assert len(err) == 1 and "nope" in err[0], err
     assert main(["eval", "--script", "pgs", "--env", "traffic_junction", "--n", "2"]) == 2
     assert "combat only" in capsys.readouterr().err
+    assert main(["eval", "--script", "pgs", "--scenario", "m3v4", "--enemy-run-dir", "somewhere", "--n", "2"]) == 2
+    assert "needs a script enemy" in capsys.readouterr().err

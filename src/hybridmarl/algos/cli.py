@@ -165,6 +165,8 @@ def run_eval(cfg: EvalConfig) -> int:
             raise errors[0]("--n must be at least 1")
         if (cfg.run_dir is None) == (cfg.script is None):
             raise errors[0]("give exactly one of --run-dir (a trained policy) or --script")
+        if cfg.script is not None and cfg.enemy_run_dir and E.is_search_spec(cfg.script):
+            raise errors[0]("a search player (--script uct/abcd/pgs) needs a script enemy (--enemy), not --enemy-run-dir")
         bundle = None
         if cfg.run_dir is not None:
             bundle = E.load_policy(cfg.run_dir, cfg.checkpoint, cfg.policy)
