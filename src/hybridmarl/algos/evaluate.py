@@ -311,6 +311,7 @@ def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, pro
     paper) against the task's enemy script, under the env's own rules. W, R and the draws are
     computed from the final states as the env computes them. Battle ``i`` seeds the players
     with ``seed + i``."""
+    from hybridmarl.engine.rules import hp_sums
     from hybridmarl.search import make_player
     from hybridmarl.search.runner import play_game_with_players
 
@@ -330,7 +331,7 @@ def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, pro
     for i in range(n):
         start = jax.tree.map(lambda a, i=i: a[i], states)
         g = play_game_with_players(start.game, env.rules, ours, enemy, seed=seed + i)
-        hp = np.maximum(np.asarray(g.final_state.hp), 0).sum(axis=1)
+        hp = np.asarray(hp_sums(g.final_state))
         norm = max(int(start.init_hp[0]), 1)
         ep["won"].append(float(g.winner == 0))
         ep["lost"].append(float(g.winner == 1))
