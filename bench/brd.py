@@ -34,9 +34,9 @@ import time
 import jax
 import jax.numpy as jnp
 
-from hybridmarl.algos import networks as nets
-from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
-from hybridmarl.algos.tasks import TaskSpec, make_task
+from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
+from hybridmarl.training import networks as nets
+from hybridmarl.training.task import TaskSpec, make_task
 
 
 def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 0, work_batch: int = 0) -> dict:

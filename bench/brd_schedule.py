@@ -24,9 +24,6 @@ import time
 import jax
 import jax.numpy as jnp
 
-from hybridmarl.algos import networks as nets
-from hybridmarl.algos.brd import best_response_dynamics
-from hybridmarl.algos.checkpoint import load_checkpoint, subtree
 from hybridmarl.algos.hybrid import (
     PRESETS,
     _static_cfg,
@@ -35,8 +32,11 @@ from hybridmarl.algos.hybrid import (
     continuation_policy,
     simulated_steps,
 )
-from hybridmarl.algos.rollout import new_pool
-from hybridmarl.algos.tasks import make_task, unflatten_named
+from hybridmarl.algos.hybrid.brd import best_response_dynamics
+from hybridmarl.training import networks as nets
+from hybridmarl.training.checkpoint import load_checkpoint, subtree
+from hybridmarl.training.rollout import new_pool
+from hybridmarl.training.task import make_task, unflatten_named
 
 
 def main() -> None:

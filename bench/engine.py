@@ -9,7 +9,7 @@ set XLA_FLAGS=--xla_force_host_platform_device_count=1 to time one core.
 
 import sys
 
-from hybridmarl.cli import main
+from hybridmarl.cli.main import main
 
 if __name__ == "__main__":
     sys.exit(main(["bench", "engine", *sys.argv[1:]]))

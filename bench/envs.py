@@ -41,7 +41,7 @@ import numpy as np
 from hybridmarl.engine import rules as R
 from hybridmarl.engine.scripts import get_script
 from hybridmarl.envs.combat import Combat
-from hybridmarl.envs.pettingzoo_adapter import PettingZooAdapter
+from hybridmarl.envs.pettingzoo import PettingZooAdapter
 
 
 def _timed_together(

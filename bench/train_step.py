@@ -22,8 +22,6 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from hybridmarl.algos import networks as nets
-from hybridmarl.algos.brd import best_response_dynamics
 from hybridmarl.algos.hybrid import (
     PRESETS,
     _static_cfg,
@@ -32,9 +30,11 @@ from hybridmarl.algos.hybrid import (
     continuation_policy,
     simulated_steps,
 )
-from hybridmarl.algos.losses import actor_loss, advantages
-from hybridmarl.algos.rollout import EpisodeAssembler, ReplayBuffer, new_pool
-from hybridmarl.algos.tasks import make_task
+from hybridmarl.algos.hybrid.brd import best_response_dynamics
+from hybridmarl.training import networks as nets
+from hybridmarl.training.losses import actor_loss, advantages
+from hybridmarl.training.rollout import EpisodeAssembler, ReplayBuffer, new_pool
+from hybridmarl.training.task import make_task
 
 
 def timed(fn, *args, repeats=3):

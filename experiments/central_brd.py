@@ -33,10 +33,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.algos import hybrid as H
-from hybridmarl.algos import networks as nets
-from hybridmarl.algos.brd import best_response_dynamics, make_q_fn
-from hybridmarl.algos.rollout import EpisodeAssembler, ReplayBuffer, new_pool
-from hybridmarl.algos.tasks import make_task
+from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
+from hybridmarl.training import networks as nets
+from hybridmarl.training.rollout import EpisodeAssembler, ReplayBuffer, new_pool
+from hybridmarl.training.task import make_task
 
 
 def _kind(a: int) -> str:

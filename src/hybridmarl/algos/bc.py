@@ -9,7 +9,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from dataclasses import dataclass
 from typing import Literal
@@ -17,16 +16,17 @@ from typing import Literal
 import jax
 import numpy as np
 
-from hybridmarl.algos import networks as nets
-from hybridmarl.algos.checkpoint import latest_checkpoint, prefixed, save_checkpoint
-from hybridmarl.algos.common import (
+from hybridmarl.io import write_json_atomic
+from hybridmarl.training import networks as nets
+from hybridmarl.training.checkpoint import latest_checkpoint, prefixed, save_checkpoint
+from hybridmarl.training.config import (
     FINAL_EVAL_SEED,
     TrainConfig,
     check_finite,
     config_to_dict,
     resolve_run_dir,
 )
-from hybridmarl.algos.tasks import TaskError, flatten_named, make_task
+from hybridmarl.training.task import TaskError, flatten_named, make_task
 
 ALGO = "bc"
 
@@ -63,9 +63,9 @@ PRESETS = {
 
 
 def train(cfg: BCConfig) -> int:
-    from hybridmarl.algos import demos as D
-    from hybridmarl.algos import evaluate as E
-    from hybridmarl.algos.logger import RunLogger
+    from hybridmarl.training import demos as D
+    from hybridmarl.training import evaluate as E
+    from hybridmarl.training.logger import RunLogger
 
     t0 = time.time()
     spec = cfg.task_spec()
@@ -99,14 +99,13 @@ def train(cfg: BCConfig) -> int:
     )
 
     # ---- Phase 3: evaluation ------------------------------------------------------------------------
-    eval_task = make_task(dataclasses.replace(spec, enemy=cfg.eval_enemy_name())) if task.kind == "combat" else task
+    eval_task = task.against(cfg.eval_enemy_name())
     res = E.evaluate_task(eval_task, module, {"params": actor.params, "batch_stats": actor.batch_stats}, n=cfg.eval_episodes, seed=cfg.seed + FINAL_EVAL_SEED)
-    res.update(bc_accuracy=acc, enemy=eval_task.spec.enemy if task.kind == "combat" else None, wall_s=time.time() - t0)
-    (run_dir / "eval.json").write_text(json.dumps(res, indent=2))
+    res.update(bc_accuracy=acc, enemy=eval_task.enemy, wall_s=time.time() - t0)
+    write_json_atomic(run_dir / "eval.json", res)
     log.close()
-    from hybridmarl.algos.hybrid import _result_line
 
-    print(_result_line(task, res))
+    print(task.result_line(res))
     return 0
 
 

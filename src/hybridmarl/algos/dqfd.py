@@ -52,7 +52,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -62,15 +61,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hybridmarl.algos import networks as nets
-from hybridmarl.algos.checkpoint import (
+from hybridmarl.io import write_json_atomic
+from hybridmarl.training import networks as nets
+from hybridmarl.training.checkpoint import (
     latest_checkpoint,
     load_checkpoint,
     prefixed,
     save_checkpoint,
     subtree,
 )
-from hybridmarl.algos.common import (
+from hybridmarl.training.config import (
     FINAL_EVAL_SEED,
     PeriodicEval,
     RunClock,
@@ -82,16 +82,15 @@ from hybridmarl.algos.common import (
     key_of,
     resolve_run_dir,
 )
-from hybridmarl.algos.losses import (
+from hybridmarl.training.losses import (
     double_q_bootstrap,
     huber,
     l2_penalty,
     large_margin_loss,
     nstep_returns,
 )
-from hybridmarl.algos.rewards import agent_rewards
-from hybridmarl.algos.rollout import EpisodeAssembler, Pool, new_pool, pool_steps
-from hybridmarl.algos.tasks import Task, TaskError, flatten_named, make_task, unflatten_named
+from hybridmarl.training.rollout import EpisodeAssembler, Pool, new_pool, pool_steps
+from hybridmarl.training.task import Task, TaskError, flatten_named, make_task, unflatten_named
 
 ALGO = "dqfd"
 
@@ -352,7 +351,7 @@ class QLearner:
         row = {
             "next": next_state,
             "actions": actions.astype(jnp.int32),
-            "agent_reward": agent_rewards(task.kind, task.num_agents, state, next_state, done, info),
+            "agent_reward": task.agent_rewards(state, next_state, done, info),
             "active": task.env.agent_active(state),
             "active_next": task.env.agent_active(next_state),
             "done": done,
@@ -444,7 +443,7 @@ def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, n
     """Re-simulate every record of a dataset once (``step(s_t, a_t)``) for its next state,
     per-agent rewards and ``done``; returns (rows, done, segment, fraction of records whose
     recorded global reward the re-simulation reproduces)."""
-    from hybridmarl.algos.demos import state_at
+    from hybridmarl.training.demos import state_at
 
     task = learner.task
     k = ds.size
@@ -581,11 +580,10 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     ``shaping(episodes) -> w``: in the interaction phase every agent's reward gets ``w`` added
     where it played the demonstrator script's action (OGTL's optional agreement bonus; ``w`` is
     taken when the transitions enter the buffer). None: no bonus and nothing computed for it."""
-    from hybridmarl.algos import demos as D
-    from hybridmarl.algos import evaluate as E
-    from hybridmarl.algos import plots
-    from hybridmarl.algos.hybrid import _best_line, _result_line
-    from hybridmarl.algos.logger import Progress, RunLogger, recent_status
+    from hybridmarl.training import demos as D
+    from hybridmarl.training import evaluate as E
+    from hybridmarl.training import plots
+    from hybridmarl.training.logger import Progress, RunLogger, recent_status
 
     clock = RunClock()
     spec = cfg.task_spec()
@@ -664,7 +662,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         check_finite("Q network parameters", st.q.params, where)
         return out
 
-    eval_task = make_task(dataclasses.replace(spec, enemy=cfg.eval_enemy_name())) if task.kind == "combat" else task
+    eval_task = task.against(cfg.eval_enemy_name())
     try:
         if st.phase == "pretrain":
             # ---- Phase 1: demonstrations ----------------------------------------------------------
@@ -696,8 +694,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
 
         # ---- Phase 3: interaction ---------------------------------------------------------------------
         prog = Progress(cfg.total_episodes, f"{algo} {spec.label()}", enabled=cfg.progress, start=st.episodes)
-        primary = "won" if task.kind == "combat" else "failed"
-        secondary = "terminal_hp_reward" if task.kind == "combat" else "return"
+        primary, secondary = task.progress_metrics
         lam_e = cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
         coeffs = np.asarray([1.0, cfg.lambda_nstep, lam_e, cfg.lambda_l2, cfg.margin])
         next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
@@ -745,17 +742,17 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
 
     # ---- Phase 4: evaluation ----------------------------------------------------------------------------
     result = evaluate(_variables(st.q), FINAL_EVAL_SEED)
-    result.update(enemy=eval_task.spec.enemy if task.kind == "combat" else None, episodes=st.episodes, updates=st.updates, **clock.elapsed())
+    result.update(enemy=eval_task.enemy, episodes=st.episodes, updates=st.updates, **clock.elapsed())
     best = E.evaluate_best(run_dir, lambda v: evaluate(v, FINAL_EVAL_SEED))
     if best is not None:
         result["best"] = best
-    (run_dir / "eval.json").write_text(json.dumps(result, indent=2))
+    write_json_atomic(run_dir / "eval.json", result)
     log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
     plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{algo}: {spec.label()}, A^D = {cfg.demonstrator_name()}")
     log.close()
-    print(_result_line(task, result))
+    print(task.result_line(result))
     if best is not None:
-        print(_best_line(task, result, best))
+        print(E.best_line(task, result, best))
     return 0
 
 

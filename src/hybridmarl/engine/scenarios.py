@@ -38,11 +38,12 @@ from hybridmarl.engine.state import (
     default_walkable,
     is_walkable_np,
 )
+from hybridmarl.errors import UserError
 
 MAX_UNITS_PER_SIDE = 512
 
 
-class InputError(ValueError):
+class InputError(UserError):
     """A problem with user input: the message is one line that names the problem."""
 
 

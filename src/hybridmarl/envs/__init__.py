@@ -49,9 +49,9 @@ def make_pettingzoo(
     illegal_action: str = "raise",
     **kwargs: Any,
 ) -> Any:
-    """A PettingZoo ``ParallelEnv`` (:class:`~hybridmarl.envs.pettingzoo_adapter.PettingZooAdapter`)
+    """A PettingZoo ``ParallelEnv`` (:class:`~hybridmarl.envs.pettingzoo.PettingZooAdapter`)
     over ``make(name, **kwargs)``."""
-    from hybridmarl.envs.pettingzoo_adapter import PettingZooAdapter
+    from hybridmarl.envs.pettingzoo import PettingZooAdapter
 
     return PettingZooAdapter(
         make(name, **kwargs), params=params, render_mode=render_mode, illegal_action=illegal_action

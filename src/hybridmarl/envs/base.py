@@ -21,7 +21,7 @@ Conventions every implementation follows:
 - ``info`` is a dict of fixed-shape arrays with the same keys at every step, so it can be
   carried through ``jax.lax.scan`` and ``jax.vmap``.
 
-``hybridmarl.envs.pettingzoo_adapter.PettingZooAdapter`` turns any ``MultiAgentEnv`` into a
+``hybridmarl.envs.pettingzoo.PettingZooAdapter`` turns any ``MultiAgentEnv`` into a
 PettingZoo ``ParallelEnv``.
 """
 

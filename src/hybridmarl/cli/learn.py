@@ -1,0 +1,337 @@
+"""``hybridmarl train``, ``hybridmarl eval`` and ``hybridmarl demos`` (wired into ``hybridmarl.cli``).
+
+Train (``--algo`` picks the learner, ``--preset`` its starting config; every config field can
+then be overridden, ``hybridmarl train --algo hybrid --help`` lists them)::
+
+    hybridmarl train --algo hybrid --preset quick --scenario m5v5 \\
+        --demonstrator attack-closest --enemy attack-weakest --seed 0 --run-dir runs/m5v5-c
+    hybridmarl train --algo hybrid --preset quick --env traffic_junction --demonstrator always-gas
+    hybridmarl train --run-dir runs/m5v5-c --resume          # continue an interrupted run
+
+Evaluate (Section 5.1 protocol; ``--json`` prints one JSON object)::
+
+    hybridmarl eval --run-dir runs/m5v5-c --enemy attack-weakest --n 100 --seed 0 --json
+    hybridmarl eval --script attack-closest --scenario m5v5 --enemy attack-weakest   # a script
+
+Demonstrations::
+
+    hybridmarl demos collect --scenario m5v5 --demonstrator attack-closest --enemy attack-weakest \\
+        --n 10000 --out demos/m5v5-c.safetensors
+    hybridmarl demos info demos/m5v5-c.safetensors
+
+Bad input (unknown script or scenario, an invalid dataset, a missing run) prints one line and
+exits with code 2; a diverged training run (NaN) exits with code 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import tyro
+
+EXIT_BAD_INPUT = 2
+
+
+def _fail(msg: str) -> int:
+    print(f"hybridmarl: error: {msg}", file=sys.stderr)
+    return EXIT_BAD_INPUT
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from hybridmarl.training.checkpoint import CheckpointError
+    from hybridmarl.training.demos import DatasetError
+    from hybridmarl.training.task import TaskError
+
+    return (TaskError, DatasetError, CheckpointError)
+
+
+# -- train -----------------------------------------------------------------------------------------------
+
+
+def run_train(args: list[str]) -> int:
+    from hybridmarl.training.config import ALGOS, algo_module, config_from_dict
+
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--algo", default="hybrid")
+    pre.add_argument("--preset", default=None)
+    pre.add_argument("--env", default="combat")
+    pre.add_argument("--run-dir", "--run_dir", dest="run_dir", default=None)
+    pre.add_argument("--resume", action="store_true")
+    known, rest = pre.parse_known_args(args)
+    errors = _user_errors()
+    try:
+        mod = algo_module(known.algo)
+        from hybridmarl.training.task import canonical_env
+
+        env = canonical_env(known.env)
+        # --resume with a run directory and no preset: start from the run's own config.
+        saved = Path(known.run_dir) / "config.json" if known.run_dir else None
+        if known.resume and known.preset is None and saved is not None and saved.is_file():
+            doc = json.loads(saved.read_text())
+            if doc.get("algo") != mod.ALGO:
+                raise _user_errors()[0](f"{known.run_dir} is a {doc.get('algo')!r} run, not {mod.ALGO!r}")
+            default = config_from_dict(type(mod.PRESETS["paper"](env)), doc["config"])
+            env = default.env
+        else:
+            preset = known.preset or "paper"
+            if preset not in mod.PRESETS:
+                raise _user_errors()[0](f"unknown preset {preset!r} for --algo {known.algo} (known: {', '.join(mod.PRESETS)})")
+            default = mod.PRESETS[preset](env)
+    except errors as e:
+        return _fail(str(e))
+    cls = type(default)
+    extra = ["--env", env]
+    if known.run_dir:
+        extra += ["--run-dir", known.run_dir]
+    if known.resume:
+        extra += ["--resume"]
+    desc = (
+        f"{(cls.__doc__ or '').strip()}\n\n--algo {{{', '.join(ALGOS)}}} (default hybrid); "
+        f"--preset {{{', '.join(mod.PRESETS)}}} (default paper) sets the defaults below."
+    )
+    cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
+    try:
+        return int(mod.train(cfg))
+    except errors as e:
+        return _fail(str(e))
+
+
+# -- eval ------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """Evaluate a trained policy (or a script) with the paper's protocol (Section 5.1)."""
+
+    run_dir: str | None = None
+    """Run directory of the policy (its newest checkpoint)."""
+    checkpoint: str | None = None
+    """With --run-dir: evaluate this checkpoint instead of the newest, by its episode count
+    (``700``) or its name (``ckpt_000000700``); the run keeps its last ``keep_checkpoints``.
+    ``best``: the policy of the run's best periodic evaluation (trained with ``--eval-every``)."""
+    policy: Literal["auto", "average", "last"] = "auto"
+    """With --run-dir: which weights of the checkpoint to play. ``auto``: the run's policy (the
+    actor's weight average where the run keeps one, ``--actor-average-from``, else the actor);
+    ``average``: the average (exit 2 without one); ``last``: the last actor itself."""
+    script: str | None = None
+    """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D), or,
+    in combat, a search player as in ``hybridmarl battle --p0`` (``uct:script=attack-closest``
+    is the paper's UCT_c, ``abcd:script=attack-closest`` its A-B_c, ``pgs`` its "Profile";
+    Table 1): the same start states, played turn by turn on the host."""
+    env: str | None = None
+    """With --script: the environment (default combat)."""
+    scenario: str | None = None
+    """Combat scenario (default: the run's)."""
+    enemy: str | None = None
+    """Enemy script. Default: the paper's cross-validation (a model learned from c fights w and
+    vice versa); for --script, attack-weakest."""
+    enemy_run_dir: str | None = None
+    """Use another run's trained actor as the enemy (combat; its agents/actions must match the
+    enemy side)."""
+    n: int = 100
+    """Battles / episodes (Section 5.1: 100)."""
+    seed: int = 0
+    """Seed of the start states."""
+    p_arrive: float | None = None
+    """Traffic junction arrival probability (default: the run's, 0.2)."""
+    time_penalty: bool | None = None
+    """Traffic junction: CommNet's ``-0.01·τ`` time penalty in the reported return (default: the
+    run's setting; off for --script). The failure rate does not depend on it."""
+    json: bool = False
+    """Print exactly one JSON object (W, R, their 95% intervals, ...) on stdout."""
+    out: str | None = None
+    """Also write the JSON here."""
+
+
+def run_eval(cfg: EvalConfig) -> int:
+    from hybridmarl.training import evaluate as E
+    from hybridmarl.training.task import (
+        TaskSpec,
+        canonical_env,
+        canonical_script,
+        default_enemy,
+        make_task,
+    )
+
+    errors = _user_errors()
+    try:
+        if cfg.n < 1:
+            raise errors[0]("--n must be at least 1")
+        if (cfg.run_dir is None) == (cfg.script is None):
+            raise errors[0]("give exactly one of --run-dir (a trained policy) or --script")
+        if cfg.script is not None and cfg.enemy_run_dir and E.is_search_spec(cfg.script):
+            raise errors[0]("a search player (--script uct/abcd/pgs) needs a script enemy (--enemy), not --enemy-run-dir")
+        bundle = None
+        if cfg.run_dir is not None:
+            bundle = E.load_policy(cfg.run_dir, cfg.checkpoint, cfg.policy)
+            spec = bundle.spec
+            trained_from = bundle.config.get("config", {}).get("demonstrator_name", "")
+        else:
+            env = canonical_env(cfg.env or "combat")
+            spec = TaskSpec(env=env)
+            trained_from = ""
+        if cfg.scenario:
+            spec = dataclasses.replace(spec, scenario=cfg.scenario)
+        if cfg.p_arrive is not None:
+            spec = dataclasses.replace(spec, p_arrive=cfg.p_arrive)
+        if cfg.time_penalty is not None:
+            spec = dataclasses.replace(spec, time_penalty=cfg.time_penalty)
+        enemy_label = None
+        if spec.env == "combat":
+            if cfg.enemy_run_dir:
+                enemy_bundle = E.load_policy(cfg.enemy_run_dir)
+                script_fn = E.mirrored_enemy(enemy_bundle, spec)
+                from hybridmarl.training.task import Task
+
+                task = Task(spec)
+                from hybridmarl.envs.combat import Combat
+
+                task.env = Combat(scenario=spec.scenario, enemy=script_fn, max_turns=spec.max_turns)
+                enemy_label = f"policy:{cfg.enemy_run_dir}"
+            else:
+                if cfg.enemy:
+                    enemy = canonical_script("combat", cfg.enemy)
+                elif trained_from and not trained_from.startswith("dataset:"):
+                    enemy = default_enemy(trained_from)
+                elif bundle is not None:
+                    enemy = bundle.config.get("config", {}).get("eval_enemy_name") or spec.enemy
+                else:
+                    enemy = "attack-weakest"
+                spec = dataclasses.replace(spec, enemy=enemy)
+                task = make_task(spec)
+                enemy_label = enemy
+        else:
+            task = make_task(spec)
+        if bundle is not None:
+            if (task.num_agents, task.num_actions, task.obs_dim) != (make_task(bundle.spec).num_agents, make_task(bundle.spec).num_actions, make_task(bundle.spec).obs_dim):
+                raise errors[0](f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes")
+            res = E.evaluate_task(task, bundle.module, bundle.variables, n=cfg.n, seed=cfg.seed)
+        elif cfg.script is not None and E.is_search_spec(cfg.script):
+            # A search player (Table 1's UCT_c, A-B_c, Profile) on the same start states as a script.
+            from hybridmarl.search import make_player
+
+            if task.kind != "combat":
+                raise errors[0]("search players (uct, abcd, pgs) play combat only")
+            try:
+                make_player(cfg.script)
+            except ValueError as e:
+                raise errors[0](str(e).splitlines()[0]) from None
+            res = E.evaluate_player(task, cfg.script, n=cfg.n, seed=cfg.seed, progress=True)
+        else:
+            assert cfg.script is not None
+            res = E.evaluate_task(task, None, None, n=cfg.n, seed=cfg.seed, script=canonical_script(task.kind, cfg.script))
+    except errors as e:
+        return _fail(str(e))
+    res.update(
+        policy=cfg.run_dir or f"script:{cfg.script}",
+        env=spec.env,
+        scenario=spec.scenario if spec.env == "combat" else None,
+        enemy=enemy_label,
+        seed=cfg.seed,
+    )
+    if bundle is not None:
+        res["episodes"] = bundle.meta.get("episodes")  # of the checkpoint evaluated
+        res["weights"] = bundle.weights
+    text = json.dumps(res, sort_keys=True)
+    if cfg.out:
+        from hybridmarl.io import write_json_atomic
+
+        write_json_atomic(cfg.out, res)
+    if cfg.json:
+        print(text)
+        return 0
+
+    print(f"{res['policy']} on {task.spec.label()}")
+    print(task.result_line(res))
+    return 0
+
+
+# -- demos -----------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class DemosCollectConfig:
+    """Record a scripted demonstrator against a scripted enemy into a dataset file."""
+
+    out: str
+    """Output file (.safetensors), written atomically."""
+    env: str = "combat"
+    """Environment: combat or traffic_junction."""
+    scenario: str = "m5v5"
+    """Combat scenario."""
+    demonstrator: str = "attack-closest"
+    """Demonstrator script (``NAME`` or ``NAME:EPS``)."""
+    enemy: str | None = None
+    """Combat enemy script (default: the cross-validation enemy of the demonstrator)."""
+    n: int = 10_000
+    """Observations (joint states) to record (Section 5.1: 10,000)."""
+    seed: int = 0
+    """Seed of the start states."""
+    num_envs: int = 64
+    """Games recorded in parallel."""
+    gamma: float = 0.995
+    """Discount of the recorded returns (Section 5.1)."""
+    p_arrive: float = 0.2
+    """Traffic junction arrival probability."""
+    time_penalty: bool = False
+    """Traffic junction: record rewards and returns with CommNet's time penalty (-0.01·τ per car
+    per step; as ``train --time-penalty``). The paper's reward has none."""
+    max_turns: int = 1000
+    """Combat turn cap per episode."""
+
+
+@dataclass(frozen=True)
+class DemosInfoConfig:
+    """Validate a dataset file and print a summary (exit code 2 with the problem if invalid)."""
+
+    path: tyro.conf.Positional[str]
+    """The dataset file."""
+
+
+def run_demos(args: list[str]) -> int:
+    if not args or args[0] not in ("collect", "info"):
+        return _fail("usage: hybridmarl demos {collect,info} [options]")
+    from hybridmarl.training import demos as D
+    from hybridmarl.training.task import TaskSpec, canonical_env, canonical_script, default_enemy
+
+    errors = _user_errors()
+    if args[0] == "info":
+        icfg = tyro.cli(DemosInfoConfig, args=args[1:], prog="hybridmarl demos info")
+        try:
+            ds = D.load_dataset(icfg.path)
+        except errors as e:
+            return _fail(str(e))
+        a = ds.arrays
+        summary = {
+            "path": icfg.path,
+            **{k: ds.meta[k] for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
+            "observations": ds.size,
+            "episodes": int(a["episode"].max()) + 1,
+            "agent_decisions": int((a["legal"].sum(-1) >= 2).sum()),
+            "mean_return": float(a["return"][a["t"] == 0].mean()) if (a["t"] == 0).any() else None,
+        }
+        print(json.dumps(summary, indent=2))
+        return 0
+    cfg = tyro.cli(DemosCollectConfig, args=args[1:], prog="hybridmarl demos collect")
+    try:
+        env = canonical_env(cfg.env)
+        demo = canonical_script(env, cfg.demonstrator)
+        if cfg.n < 1:
+            raise errors[0]("--n must be at least 1")
+        if env == "combat":
+            enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
+            spec = TaskSpec(env=env, scenario=cfg.scenario, enemy=enemy, max_turns=cfg.max_turns)
+        else:
+            spec = TaskSpec(env=env, p_arrive=cfg.p_arrive, time_penalty=cfg.time_penalty)
+        ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma)
+        path = D.save_dataset(ds, cfg.out)
+    except errors as e:
+        return _fail(str(e))
+    print(f"recorded {ds.size} observations ({int(ds.arrays['episode'].max()) + 1} episodes) of {demo} on {spec.label()} -> {path}")
+    return 0

@@ -1,0 +1,353 @@
+"""Record an episode and write it as an animated GIF: a combat battle or a Traffic Junction episode.
+
+The Python API behind ``hybridmarl replay``::
+
+    from hybridmarl.cli.replay import ReplayConfig, run_replay
+    run_replay(ReplayConfig(env="combat", scenario="m5v5", ours="attack-closest",
+                            enemy="attack-weakest", out="out/replay_m5v5.gif"))
+
+or, for the frames themselves, :func:`record_combat_episode` / :func:`record_tj_episode`, then
+``hybridmarl.envs.video.write_video(frames, path, fps)``.
+
+Combat: our side (red) is played by an engine script wrapped as a per-agent env policy
+(``Combat.script_policy``: the script's engine actions converted back to env actions) or by any
+env policy ``(key, CombatState) -> int32 [n0]``; the enemy (green) is the env's scripted enemy.
+The camera is fixed for the whole episode (a window around every unit position of the episode,
+:func:`hybridmarl.envs.combat.camera_window`). Traffic Junction: the cars follow a demonstrator
+(``always-gas``, ``yield-before-junction``, or any ``(TJState, key) -> int32 [N]``).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+__all__ = [
+    "TJ_DEMONSTRATORS",
+    "ReplayConfig",
+    "record_combat_episode",
+    "record_tj_episode",
+    "run_replay",
+]
+
+#: Traffic Junction demonstrators by name (``hybridmarl.envs.traffic_junction``).
+TJ_DEMONSTRATORS = ("always-gas", "yield-before-junction")
+_FINAL_HOLD_S = 1.0  # the last frame is repeated for about this long, so the ending is readable
+
+
+@dataclass(frozen=True)
+class ReplayConfig:
+    """What to replay and where to write it (``hybridmarl replay``)."""
+
+    env: str = "combat"
+    """Environment: ``combat`` (SparCraft battle, paper Section 5.1) or ``traffic_junction``
+    (Section 5.3)."""
+    scenario: str = "m5v5"
+    """Combat scenario: a name (``m5v5``, ``m30v30``, ``m18v20``, ``m24v30``, ``m<A>v<B>-apart``)
+    or a scenario JSON file. Ignored for traffic_junction."""
+    ours: str | None = None
+    """Our side's policy. Combat: an engine script name (default ``attack-closest``, the paper's
+    demonstrator c). Traffic Junction: a demonstrator, ``always-gas`` or
+    ``yield-before-junction`` (default)."""
+    enemy: str = "attack-weakest"
+    """Combat: the scripted enemy (default ``attack-weakest``, the paper's heuristic w).
+    Ignored for traffic_junction."""
+    seed: int = 0
+    """Seed of the episode (start state, random scripts, car arrivals)."""
+    out: str = "out/replay.gif"
+    """Output path: ``.gif`` (or ``.mp4`` if an imageio ffmpeg backend is installed)."""
+    fps: int = 8
+    """Frames per second of the video (one frame per env step)."""
+    max_steps: int = 500
+    """Stop after this many env steps even if the episode has not ended (Traffic Junction
+    episodes end after 40 steps)."""
+    p_arrive: float = 0.2
+    """Traffic Junction car arrival probability per entry and step (0.2: the paper's
+    evaluation setting). Ignored for combat."""
+    time_penalty: bool = False
+    """Traffic junction: CommNet's -0.01·τ per car per step in the reported return (a run's own
+    setting with ``--run-dir``)."""
+    run_dir: str | None = None
+    """Play our side with the trained actor of this run directory (``hybridmarl train``; its
+    newest checkpoint, legal argmax as in the paper's test protocol) instead of ``ours``. The
+    environment and combat scenario are the run's; ``enemy`` still picks the enemy script."""
+
+
+# --------------------------------------------------------------------------------------------
+# Combat.
+# --------------------------------------------------------------------------------------------
+
+
+def _resolve_scenario(scenario: Any) -> Any:
+    from hybridmarl.engine.scenarios import Scenario, load_scenario_file, named_scenario
+
+    if isinstance(scenario, Scenario):
+        return scenario
+    s = str(scenario)
+    return load_scenario_file(s) if s.lower().endswith(".json") else named_scenario(s)
+
+
+def record_combat_episode(
+    scenario: Any = "m5v5",
+    ours: str | Callable[[jax.Array, Any], jax.Array] = "attack-closest",
+    enemy: str = "attack-weakest",
+    seed: int = 0,
+    max_steps: int = 500,
+    *,
+    env: Any = None,
+    width: int = 640,
+) -> tuple[list[np.ndarray], dict[str, Any]]:
+    """Play one combat episode and render every decision point.
+
+    Args:
+        scenario: scenario name, scenario JSON path or ``Scenario`` (ignored if ``env`` is given).
+        ours: an engine script name or an env policy ``(key, CombatState) -> int32 [n0]``.
+        enemy: the enemy script (ignored if ``env`` is given).
+        seed: seeds the start state and the policies' keys.
+        max_steps: cap on env steps.
+        env: a ready ``Combat`` to use instead of building one.
+        width: frame width in px.
+
+    Returns:
+        ``(frames, summary)``: uint8 ``[H, W, 3]`` frames (the start, then one per step) and a
+        JSON-able summary of the episode.
+    """
+    from hybridmarl.envs.combat import Combat, camera_window
+
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    if env is None:
+        env = Combat(_resolve_scenario(scenario), enemy=enemy)
+    policy = env.script_policy(ours) if isinstance(ours, str) else ours
+    reset = jax.jit(env.reset)
+    step = jax.jit(env.step)
+    act = jax.jit(policy)
+
+    key = jax.random.key(seed)
+    key, k0 = jax.random.split(key)
+    _, state = reset(k0)
+    states = [state]
+    total = 0.0
+    illegal = 0
+    info: dict[str, Any] = {}
+    done = False
+    while not done and len(states) <= max_steps:
+        key, k_act, k_env = jax.random.split(key, 3)
+        _, state, reward, d, info = step(k_env, state, act(k_act, state))
+        states.append(state)
+        total += float(reward)
+        illegal += int(info["illegal_actions"])
+        done = bool(d)
+    window = camera_window([s.game for s in states])
+    frames = [env.render(s, window=window, width=width) for s in states]
+    info = {k: np.asarray(v).item() for k, v in jax.device_get(info).items()}
+    last = states[-1]
+    hp = np.asarray(last.game.hp).clip(min=0).sum(axis=1)
+    result = "unfinished"
+    if done:
+        result = "won" if info["won"] else "lost" if info["lost"] else "draw"
+    summary = {
+        "env": env.name,
+        "scenario": env.scenario.name if env.scenario is not None else None,
+        "ours": ours if isinstance(ours, str) else getattr(ours, "__name__", "policy"),
+        "enemy": env.enemy_name,
+        "seed": seed,
+        "steps": len(states) - 1,
+        "engine_turns": int(last.game.turn),
+        "final_frame_time": int(last.game.time),
+        "done": done,
+        "result": result,
+        "allied_hp": int(hp[0]),
+        "enemy_hp": int(hp[1]),
+        "terminal_hp_reward": float((hp[0] - hp[1]) / max(int(last.init_hp[0]), 1)),
+        "return": round(total, 6),
+        "illegal_actions": illegal,
+    }
+    return frames, summary
+
+
+def _hold_last(frames: list[np.ndarray], fps: int) -> list[np.ndarray]:
+    return frames + [frames[-1]] * max(round(_FINAL_HOLD_S * fps) - 1, 0)
+
+
+# --------------------------------------------------------------------------------------------
+# Traffic Junction.
+# --------------------------------------------------------------------------------------------
+
+
+def _tj_demonstrator(name: str) -> Callable[[Any, jax.Array], jax.Array]:
+    from hybridmarl.envs.traffic_junction import always_gas, yield_before_junction
+
+    key = name.strip().lower().replace("_", "-")
+    table = {
+        "always-gas": always_gas,
+        "gas": always_gas,
+        "yield-before-junction": yield_before_junction,
+        "yield": yield_before_junction,
+    }
+    if key not in table:
+        raise ValueError(
+            f"unknown Traffic Junction demonstrator {name!r} (known: {', '.join(TJ_DEMONSTRATORS)})"
+        )
+    return table[key]
+
+
+def record_tj_episode(
+    demonstrator: str | Callable[[Any, jax.Array], jax.Array] = "yield-before-junction",
+    p_arrive: float = 0.2,
+    seed: int = 0,
+    max_steps: int = 40,
+    *,
+    cell_px: int = 24,
+    time_penalty: bool = False,
+) -> tuple[list[np.ndarray], dict[str, Any]]:
+    """Play one Traffic Junction episode with a demonstrator and render every step.
+
+    Returns ``(frames, summary)`` like :func:`record_combat_episode`.
+    """
+    from hybridmarl.envs.traffic_junction import TrafficJunction
+
+    if not 0.0 <= float(p_arrive) <= 1.0:
+        raise ValueError(f"p_arrive must be in [0, 1], got {p_arrive}")
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    policy = _tj_demonstrator(demonstrator) if isinstance(demonstrator, str) else demonstrator
+    env = TrafficJunction()
+    params = env.default_params.replace(p_arrive=float(p_arrive), time_penalty=bool(time_penalty))
+    step = jax.jit(env.step)
+    act = jax.jit(policy)
+    key = jax.random.key(seed)
+    key, k0 = jax.random.split(key)
+    _, state = env.reset(k0, params)
+    states = [state]
+    total, collisions, arrivals = 0.0, 0, 0
+    done = False
+    while not done and len(states) <= max_steps:
+        key, k_act, k_env = jax.random.split(key, 3)
+        _, state, reward, d, info = step(k_env, state, act(state, k_act), params)
+        states.append(state)
+        total += float(reward)
+        collisions += int(info["collisions"])
+        arrivals += int(info["arrivals"])
+        done = bool(d)
+    frames = [env.render(s, cell_px=cell_px) for s in states]
+    summary = {
+        "env": env.name,
+        "demonstrator": demonstrator if isinstance(demonstrator, str) else "policy",
+        "p_arrive": float(p_arrive),
+        "time_penalty": bool(time_penalty),
+        "seed": seed,
+        "steps": len(states) - 1,
+        "done": done,
+        "failed": bool(states[-1].failed),
+        "collisions": collisions,
+        "arrivals": arrivals,
+        "return": round(total, 6),
+    }
+    return frames, summary
+
+
+# --------------------------------------------------------------------------------------------
+# The CLI entry point.
+# --------------------------------------------------------------------------------------------
+
+
+def _validate(cfg: ReplayConfig) -> str:
+    """Canonical env name; raises ValueError with a one-line message on bad input."""
+    from hybridmarl.engine.scripts import canonical_name
+
+    env = str(cfg.env).strip().lower().replace("-", "_")
+    env = {
+        "combat_v0": "combat",
+        "traffic_junction_v0": "traffic_junction",
+        "tj": "traffic_junction",
+    }.get(env, env)
+    if env not in ("combat", "traffic_junction"):
+        raise ValueError(f"unknown env {cfg.env!r} (known: combat, traffic_junction)")
+    suffix = Path(cfg.out).suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise ValueError(f"output {cfg.out!r} must end in .gif (or .mp4)")
+    if isinstance(cfg.fps, bool) or not isinstance(cfg.fps, int) or cfg.fps <= 0:
+        raise ValueError(f"fps must be a positive integer, got {cfg.fps!r}")
+    if isinstance(cfg.max_steps, bool) or not isinstance(cfg.max_steps, int) or cfg.max_steps < 1:
+        raise ValueError(f"max_steps must be a positive integer, got {cfg.max_steps!r}")
+    if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int) or cfg.seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {cfg.seed!r}")
+    if env == "combat":
+        for who, name in (("ours", cfg.ours or "attack-closest"), ("enemy", cfg.enemy)):
+            try:
+                canonical_name(name)
+            except KeyError as e:
+                raise ValueError(f"{who}: {e.args[0]}") from None
+        _resolve_scenario(cfg.scenario)  # InputError (a ValueError) with one line if bad
+    else:
+        _tj_demonstrator(cfg.ours or "yield-before-junction")
+        if not 0.0 <= float(cfg.p_arrive) <= 1.0:
+            raise ValueError(f"p_arrive must be in [0, 1], got {cfg.p_arrive!r}")
+    return env
+
+
+def _trained_policy(cfg: ReplayConfig) -> tuple[ReplayConfig, Callable[..., jax.Array]]:
+    """The run's env/scenario in ``cfg`` and its actor as an env policy (legal argmax).
+    Raises ValueError (one line) for a missing or broken run directory."""
+    import dataclasses
+
+    from hybridmarl.training import networks as nets
+    from hybridmarl.training.evaluate import load_policy
+    from hybridmarl.training.task import make_task
+
+    bundle = load_policy(str(cfg.run_dir))  # CheckpointError is a ValueError
+    spec = bundle.spec
+    task = make_task(spec)
+    module, variables = bundle.module, bundle.variables
+
+    def act(state: Any) -> jax.Array:
+        return nets.actor_actions(module, variables, task.observe(state)[None], task.avail(state)[None])[0]
+
+    if spec.env == "combat":
+        cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None)
+        return cfg, lambda key, state: act(state)
+    cfg = dataclasses.replace(cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None)
+    return cfg, lambda state, key: act(state)
+
+
+def run_replay(cfg: ReplayConfig) -> int:
+    """Record the episode ``cfg`` describes and write the video (the last frame held for about
+    a second); print a one-line JSON summary.
+
+    Returns the exit code: 0 on success, 2 on bad input (one line on stderr), 1 if the video
+    cannot be written.
+    """
+    from hybridmarl.envs.video import write_video
+
+    trained = None
+    try:
+        if cfg.run_dir is not None:
+            trained = _trained_policy(cfg)
+            cfg = trained[0]
+        env = _validate(cfg)
+    except ValueError as e:
+        print(f"hybridmarl replay: error: {e}", file=sys.stderr)
+        return 2
+    if env == "combat":
+        ours: Any = trained[1] if trained else (cfg.ours or "attack-closest")
+        frames, summary = record_combat_episode(cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps)
+    else:
+        ours = trained[1] if trained else (cfg.ours or "yield-before-junction")
+        frames, summary = record_tj_episode(ours, cfg.p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
+    if trained:
+        summary["ours"] = f"policy:{cfg.run_dir}"
+    try:
+        path = write_video(_hold_last(frames, cfg.fps), cfg.out, fps=cfg.fps)
+    except (OSError, RuntimeError) as e:
+        print(f"hybridmarl replay: error: cannot write {cfg.out!r}: {e}", file=sys.stderr)
+        return 1
+    print(json.dumps({**summary, "out": path, "fps": cfg.fps}))
+    return 0

@@ -1,0 +1,173 @@
+"""Atomic checkpoints: safetensors for arrays, JSON for metadata; never pickle.
+
+Layout under a run directory::
+
+    checkpoints/
+      ckpt_000000123/          # 123 = the training counter (episodes) at save time
+        arrays.safetensors     # every array of the training state, by name
+        meta.json              # counters, config, versions; written last
+      ckpt_000000456/
+      ...
+      best/                    # the actor of the best periodic evaluation (--eval-every), if any
+
+A checkpoint directory is written under a temporary name and renamed into place, so a crash
+never leaves a half-written checkpoint under a final name; a directory without ``meta.json`` is
+ignored. The last ``keep`` checkpoints are kept; ``best`` is never pruned and never resumed from.
+
+Named arrays come from ``tasks.flatten_named`` (pytree paths such as ``actor.params.Dense_0.kernel``);
+typed PRNG keys are stored as their uint32 key data.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from safetensors.numpy import load_file, save_file
+
+from hybridmarl.errors import UserError
+
+CKPT_DIR = "checkpoints"
+#: Name of the checkpoint holding the best periodically evaluated policy (``common.PeriodicEval``).
+BEST = "best"
+#: Array prefix of the actor's weight average (hybrid ``actor_average_from``); a policy loaded
+#: from a checkpoint that has it is the average (``evaluate.load_policy``).
+AVERAGE_PREFIX = "actor_average"
+FORMAT_VERSION = 1
+_NAME = re.compile(r"^ckpt_(\d{9,})$")
+
+
+class CheckpointError(UserError):
+    """A missing or unreadable checkpoint (one-line message)."""
+
+
+def _contiguous(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    out = {}
+    for k, v in arrays.items():
+        a = np.asarray(v)
+        if not a.flags.c_contiguous:  # (np.ascontiguousarray would turn a 0-d array into 1-d)
+            a = a.copy(order="C")
+        if a.dtype == object:
+            raise TypeError(f"array {k!r} has dtype object; only numeric arrays are checkpointed")
+        out[k] = a
+    return out
+
+
+def checkpoint_name(step: int) -> str:
+    """Directory name of checkpoint ``step`` (the training counter at save time)."""
+    return f"ckpt_{int(step):09d}"
+
+
+def save_checkpoint(
+    run_dir: str | Path, step: int, arrays: dict[str, np.ndarray], meta: dict[str, Any], keep: int = 3, name: str | None = None
+) -> Path:
+    """Write checkpoint ``step`` atomically and prune to the newest ``keep``. Returns its path.
+
+    ``name`` (e.g. :data:`BEST`) writes a named checkpoint instead, replaced as a whole on each
+    save; named checkpoints are not counted, pruned or resumed from."""
+    root = Path(run_dir) / CKPT_DIR
+    root.mkdir(parents=True, exist_ok=True)
+    final = root / (name or checkpoint_name(step))
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp_{final.name}_", dir=root))
+    try:
+        save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
+        doc = dict(meta)
+        doc["format_version"] = FORMAT_VERSION
+        doc["step"] = int(step)
+        with open(tmp / "meta.json", "w") as f:
+            json.dump(doc, f, indent=2, sort_keys=True)
+            f.flush()
+            os.fsync(f.fileno())
+        if final.exists():
+            # Move the old one aside first: a crash between the two renames leaves no
+            # checkpoint under the final name (ignored), never a half-written one.
+            stale = Path(tempfile.mkdtemp(prefix=f".old_{final.name}_", dir=root))
+            os.replace(final, stale / final.name)
+            os.replace(tmp, final)
+            shutil.rmtree(stale, ignore_errors=True)
+        else:
+            os.replace(tmp, final)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if name is not None:
+        return final
+    for old in list_checkpoints(run_dir)[:-keep] if keep > 0 else []:
+        shutil.rmtree(old, ignore_errors=True)
+    return final
+
+
+def list_checkpoints(run_dir: str | Path) -> list[Path]:
+    """Complete checkpoints of a run, oldest first."""
+    root = Path(run_dir) / CKPT_DIR
+    if not root.is_dir():
+        return []
+    found = []
+    for p in root.iterdir():
+        m = _NAME.match(p.name)
+        if m and p.is_dir() and (p / "meta.json").is_file() and (p / "arrays.safetensors").is_file():
+            found.append((int(m.group(1)), p))
+    return [p for _, p in sorted(found)]
+
+
+def latest_checkpoint(run_dir: str | Path) -> Path | None:
+    ck = list_checkpoints(run_dir)
+    return ck[-1] if ck else None
+
+
+def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path:
+    """The newest complete checkpoint (``which`` None), or the one named by its step (``700``),
+    its directory name (``ckpt_000000700``) or ``best``. :class:`CheckpointError` names what is kept."""
+    kept = list_checkpoints(run_dir)
+    best = Path(run_dir) / CKPT_DIR / BEST
+    if which is not None and str(which).strip() == BEST:
+        if (best / "meta.json").is_file() and (best / "arrays.safetensors").is_file():
+            return best
+        raise CheckpointError(f"{run_dir}: no best checkpoint (it is kept by training with --eval-every > 0)")
+    if not kept:
+        raise CheckpointError(f"{run_dir}: no checkpoint found under {Path(run_dir) / CKPT_DIR}")
+    if which is None:
+        return kept[-1]
+    name = str(which).strip()
+    name = checkpoint_name(int(name)) if name.isdigit() else name
+    for p in kept:
+        if p.name == name:
+            return p
+    raise CheckpointError(f"{run_dir}: no checkpoint {which!r} (have: {', '.join(p.name for p in kept)})")
+
+
+def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """``(arrays, meta)`` of one checkpoint directory."""
+    path = Path(path)
+    try:
+        with open(path / "meta.json") as f:
+            meta = json.load(f)
+        arrays = load_file(str(path / "arrays.safetensors"))
+    except FileNotFoundError as e:
+        raise CheckpointError(f"checkpoint {path}: missing {Path(e.filename).name}") from None
+    except (json.JSONDecodeError, OSError, ValueError) as e:
+        raise CheckpointError(f"checkpoint {path}: unreadable ({e})") from None
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise CheckpointError(
+            f"checkpoint {path}: format version {meta.get('format_version')!r}, expected {FORMAT_VERSION}"
+        )
+    return arrays, meta
+
+
+def subtree(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    """The entries under ``prefix.`` with the prefix removed."""
+    p = prefix + "."
+    out = {k[len(p) :]: v for k, v in arrays.items() if k.startswith(p)}
+    if prefix in arrays:
+        out[""] = arrays[prefix]
+    return out
+
+
+def prefixed(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    return {(f"{prefix}.{k}" if k else prefix): v for k, v in arrays.items()}

@@ -1,0 +1,364 @@
+"""The evaluation protocol (paper Section 5.1) and loading trained policies.
+
+- ``n`` battles (default 100) from random start states of the scenario, every agent playing
+  the **legal action with the largest probability** under the actor (eval-mode batch norm);
+- metrics: **W**, the win rate (a battle is won when the enemy has no unit left that can deal
+  damage and we do), with a 95% **Wilson** score interval; **R**, the terminal hit-points reward
+  (allied HP - enemy HP at the end, / initial allied HP; Table 1 footnote 1), mean with a 95%
+  Student-t interval;
+- the enemy is a script (default: the paper's cross-validation, a model learned from c fights
+  w and vice versa) or another trained policy (``--enemy-run-dir``: its actor plays the enemy
+  side, mirrored so that it sees the battle as it did in training);
+- Traffic Junction: ``failure_rate`` (an episode fails when any collision happens; p_arrive
+  0.2) with its Wilson interval; ``W`` is then the success rate and ``R`` the mean return.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hybridmarl.training import networks as nets
+from hybridmarl.training.checkpoint import (
+    AVERAGE_PREFIX,
+    BEST,
+    CheckpointError,
+    find_checkpoint,
+    load_checkpoint,
+    subtree,
+)
+from hybridmarl.training.task import Task, TaskSpec, make_task, unflatten_named
+
+Z95 = 1.959963984540054
+
+
+def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """95% Wilson score interval of a binomial proportion."""
+    if n <= 0:
+        return (float("nan"), float("nan"))
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def t_interval(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
+    """(mean, low, high): Student-t interval of the mean."""
+    x = np.asarray(x, np.float64)
+    n = x.size
+    if n == 0:
+        return (float("nan"), float("nan"), float("nan"))
+    m = float(x.mean())
+    if n == 1:
+        return (m, float("nan"), float("nan"))
+    from scipy.stats import t as student_t
+
+    half = float(student_t.ppf(0.5 + level / 2, n - 1) * x.std(ddof=1) / math.sqrt(n))
+    return (m, m - half, m + half)
+
+
+# -- playing episodes --------------------------------------------------------------------------------
+
+
+#: ``policy(params, key, states [B], obs [B, N, D], legal [B, N, A]) -> actions [B, N]``.
+def actor_policy(module: nets.MLP):
+    def policy(variables, key, states, obs, legal):
+        del key, states
+        return nets.actor_actions(module, variables, obs, legal)
+
+    return policy
+
+
+def script_policy(task: Task, name: str):
+    fn = task.demonstrator(name)
+
+    def policy(variables, key, states, obs, legal):
+        del variables, obs, legal
+        return jax.vmap(fn)(jax.random.split(key, states_batch(states)), states)
+
+    return policy
+
+
+def states_batch(states: Any) -> int:
+    return int(jax.tree.leaves(states)[0].shape[0])
+
+
+def run_episodes(task: Task, policy, variables: Any, key: jax.Array, n: int) -> dict[str, np.ndarray]:
+    """Play ``n`` episodes in parallel to their ends; per-episode metrics (``task.metric_names``
+    plus ``return``, the undiscounted sum of rewards, and ``steps``)."""
+    fn = _episodes_fn(task, policy, n)
+    out = fn(variables, key)
+    return {k: np.asarray(v) for k, v in jax.device_get(out).items()}
+
+
+@functools.lru_cache(maxsize=32)
+def _episodes_fn(task: Task, policy, n: int):
+    def run(variables, key):
+        k_reset, k_run = jax.random.split(key)
+        obs, states = jax.vmap(task.reset)(jax.random.split(k_reset, n))
+        zeros = {k: jnp.zeros((n,), jnp.float32) for k in task.metric_names}
+
+        def cond(c):
+            return ~jnp.all(c[3])
+
+        def body(c):
+            states, obs, key, finished, stats, ret, steps = c
+            key, k_act, k_step = jax.random.split(key, 3)
+            legal = jax.vmap(task.avail)(states)
+            actions = policy(variables, k_act, states, obs, legal)
+            obs2, s2, r, d, info = jax.vmap(task.step)(jax.random.split(k_step, n), states, actions)
+            new_stats = jax.vmap(task.episode_stats)(s2, info)
+            live = ~finished
+            ret = ret + jnp.where(live, r, 0.0)
+            steps = steps + live.astype(jnp.int32)
+            ending = live & d
+            stats = {k: jnp.where(ending, new_stats[k], stats[k]) for k in stats}
+            sel = lambda a, b: jnp.where(live.reshape(live.shape + (1,) * (a.ndim - 1)), a, b)  # noqa: E731
+            states = jax.tree.map(sel, s2, states)
+            obs = sel(obs2, obs)
+            return states, obs, key, finished | d, stats, ret, steps
+
+        init = (states, obs, k_run, jnp.zeros((n,), bool), zeros, jnp.zeros((n,), jnp.float32), jnp.zeros((n,), jnp.int32))
+        _, _, _, _, stats, ret, steps = jax.lax.while_loop(cond, body, init)
+        return {**stats, "return": ret, "steps": steps}
+
+    return jax.jit(run)
+
+
+def best_line(task: Task, result: dict[str, Any], best: dict[str, Any]) -> str:
+    """The final evaluation's line for the ``best`` checkpoint (``--eval-every``)."""
+    line = task.result_line({**result, **best}).removeprefix("eval ")
+    return f"best checkpoint (episode {best['episodes']}, chosen on the selection states): {line}"
+
+
+def summarize(task: Task, ep: dict[str, np.ndarray]) -> dict[str, Any]:
+    """W/R (or failure rate) with 95% intervals from per-episode metrics."""
+    n = int(next(iter(ep.values())).shape[0])
+    out: dict[str, Any] = {"n": n}
+    if task.kind == "combat":
+        wins = int(np.sum(ep["won"] > 0.5))
+        lo, hi = wilson_interval(wins, n)
+        r, rlo, rhi = t_interval(ep["terminal_hp_reward"])
+        out.update(
+            W=wins / n, W_ci95=[lo, hi], R=r, R_ci95=[rlo, rhi],
+            losses=float(np.mean(ep["lost"])), draws=float(np.mean(ep["draw"])),
+        )
+    else:
+        fails = int(np.sum(ep["failed"] > 0.5))
+        lo, hi = wilson_interval(fails, n)
+        slo, shi = wilson_interval(n - fails, n)
+        r, rlo, rhi = t_interval(ep["return"])
+        out.update(
+            failure_rate=fails / n, failure_rate_ci95=[lo, hi],
+            W=(n - fails) / n, W_ci95=[slo, shi], R=r, R_ci95=[rlo, rhi],
+            mean_arrivals=float(np.mean(ep["arrivals"])), mean_collisions=float(np.mean(ep["collisions"])),
+        )
+    out["mean_steps"] = float(np.mean(ep["steps"]))
+    return out
+
+
+# -- trained policies ------------------------------------------------------------------------------------
+
+
+class PolicyBundle:
+    """A trained actor loaded from a run directory."""
+
+    def __init__(self, run_dir: Path, config: dict[str, Any], spec: TaskSpec, module: nets.MLP, variables: dict, meta: dict, weights: str = "last"):
+        self.run_dir = run_dir
+        self.config = config
+        self.spec = spec
+        self.module = module
+        self.variables = variables
+        self.meta = meta
+        self.weights = weights
+        """``last`` (the actor) or ``average`` (its weight average)."""
+
+    @property
+    def demonstrator(self) -> str:
+        return str(self.config.get("config", {}).get("demonstrator_name", self.config.get("config", {}).get("demonstrator", "")))
+
+
+#: Which weights of a checkpoint ``load_policy`` reads: the run's policy (``auto``: the weight
+#: average where the run keeps one, else the actor), the ``average`` (an error without one) or
+#: the ``last`` actor.
+POLICY_CHOICES = ("auto", "average", "last")
+
+
+def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, policy: str = "auto") -> PolicyBundle:
+    """The policy of one checkpoint of a run (``config.json`` says how it was built): the newest,
+    or ``checkpoint``, given as its episode count (``700``), its directory name
+    (``ckpt_000000700``) under ``run_dir/checkpoints``, or ``best``. ``policy`` (see
+    ``POLICY_CHOICES``) picks the actor or its weight average (``actor_average.*``, hybrid
+    ``actor_average_from``); by default the average where the run keeps one."""
+    if policy not in POLICY_CHOICES:
+        raise ValueError(f"policy must be one of {', '.join(POLICY_CHOICES)}, not {policy!r}")
+    run_dir = Path(run_dir)
+    cfg_path = run_dir / "config.json"
+    if not cfg_path.is_file():
+        raise CheckpointError(f"{run_dir}: no config.json (not a hybridmarl run directory)")
+    doc = json.loads(cfg_path.read_text())
+    ck = find_checkpoint(run_dir, checkpoint)
+    arrays, meta = load_checkpoint(ck)
+    spec = TaskSpec.from_dict(doc["task"])
+    task = make_task(spec)
+    hidden = tuple(doc["config"].get("actor_hidden", nets.ACTOR_HIDDEN))
+    module = nets.actor_module(task.num_actions, hidden)
+    template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False))
+    # A run with weight averaging (hybrid ``actor_average_from``) exports the average.
+    has_average = any(k.startswith(AVERAGE_PREFIX + ".") for k in arrays)
+    if policy == "average" and not has_average:
+        raise CheckpointError(f"{ck}: holds no weight average (the run was trained without --actor-average-from, or before its first average)")
+    prefix = AVERAGE_PREFIX if has_average and policy != "last" else "actor"
+    try:
+        variables = {
+            "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),
+            "batch_stats": unflatten_named(template["batch_stats"], subtree(arrays, f"{prefix}.batch_stats")),
+        }
+    except (KeyError, ValueError) as e:
+        raise CheckpointError(f"{ck}: actor does not fit the run's config ({e})") from None
+    return PolicyBundle(run_dir, doc, spec, module, variables, meta, "average" if prefix == AVERAGE_PREFIX else "last")
+
+
+def evaluate_best(run_dir: str | Path, evaluate: Any) -> dict[str, Any] | None:
+    """The final evaluation of a run's ``best`` checkpoint (``--keep-best``), if it has one:
+    ``evaluate(variables) -> result`` plus the checkpoint's ``episodes`` and its ``selection``
+    result. None without a best checkpoint."""
+    try:
+        bundle = load_policy(run_dir, BEST)
+    except CheckpointError:
+        return None
+    res = evaluate(bundle.variables)
+    res.update(episodes=bundle.meta.get("episodes"), selection=bundle.meta.get("selection"))
+    return res
+
+
+def mirrored_enemy(bundle: PolicyBundle, spec: TaskSpec):
+    """A trained combat actor as an enemy *script* for player 1 of ``spec``'s scenario.
+
+    The battle is mirrored for it (players swapped, x flipped around the map centre) so it sees
+    itself as player 0 on the left, as in training; its left/right moves are flipped back.
+    Needs a policy trained with as many agents as the enemy has units, and vice versa.
+    """
+    from hybridmarl.envs.combat import Combat, CombatState
+
+    me = make_task(spec)
+    if me.kind != "combat" or bundle.spec.env != "combat":
+        raise CheckpointError("--enemy-run-dir needs combat runs")
+    n0, n1 = me.env.num_agents, me.env.num_enemies
+    mirror = Combat(scenario=f"m{n1}v{n0}", enemy="attack-weakest", max_turns=spec.max_turns)
+    src = make_task(bundle.spec)
+    if (src.num_agents, src.num_actions) != (mirror.num_agents, mirror.num_actions):
+        raise CheckpointError(
+            f"the enemy policy was trained with {src.num_agents} agents and {src.num_actions} actions; "
+            f"as the enemy of {spec.scenario} it needs {mirror.num_agents} and {mirror.num_actions}"
+        )
+    width = int(np.asarray(mirror.rules.walkable).shape[1] * 8)
+    module, variables = bundle.module, bundle.variables
+    u = me.env.num_slots
+
+    def script(key, game, ctx, p):
+        del key, ctx
+        flip = lambda a: a[::-1]  # noqa: E731 - swap the two player rows
+        g = game.replace(
+            **{f: flip(getattr(game, f)) for f in ("utype", "uid", "y", "py", "t_act", "last", "hp", "t_move", "t_attack")},
+            x=flip(width - 1 - game.x),
+            px=flip(width - 1 - game.px),
+            prev_hp_sum=game.prev_hp_sum[::-1],
+            ltd_total=game.ltd_total[::-1],
+            ltd2_total=game.ltd2_total[::-1],
+        )
+        st = CombatState(game=g, last_actions=jnp.full((2, u), -1, jnp.int32), init_hp=g.prev_hp_sum, steps=jnp.zeros((), jnp.int32))
+        obs = mirror.observe(st)
+        legal = mirror.get_avail_actions(st)
+        a = nets.actor_actions(module, variables, obs, legal)
+        codes = mirror.env_to_engine_actions(st, a)
+        codes = jnp.where(codes == 2, 3, jnp.where(codes == 3, 2, codes))  # left <-> right
+        out = jnp.zeros((u,), jnp.int32).at[: codes.shape[0]].set(codes)
+        return out.astype(jnp.int32)
+
+    return script
+
+
+def evaluate_task(
+    task: Task, module: nets.MLP | None, variables: Any, *, n: int = 100, seed: int = 0, script: str | None = None
+) -> dict[str, Any]:
+    """Run the protocol for an actor (``module``/``variables``) or a ``script``; summary dict."""
+    key = jax.random.key(seed)
+    if script is not None:
+        ep = run_episodes(task, _script_policy_cached(task, script), None, key, n)
+    else:
+        assert module is not None
+        ep = run_episodes(task, _actor_policy_cached(nets.module_spec(module)), variables, key, n)
+    return summarize(task, ep)
+
+
+def is_search_spec(spec: str) -> bool:
+    """True when ``spec`` names a search player (``uct``, ``abcd:time_ms=0,nodes=500``, ``pgs``,
+    ...), whether or not its options are valid (``search.make_player`` checks those)."""
+    from hybridmarl.search.base import _NAME_ALIASES
+
+    return spec.split(":", 1)[0].strip().lower().replace("_", "-") in _NAME_ALIASES
+
+
+def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, progress: bool = False) -> dict[str, Any]:
+    """The protocol for any engine player as our side of a combat task, above all the search
+    players of Table 1 (``uct:script=attack-closest`` is the paper's UCT_c, ``abcd:...`` its
+    A-B_c, ``pgs`` its "Profile"). The start states are exactly those of ``evaluate_task`` with
+    the same ``n`` and ``seed``; each battle is played by the host loop of ``search.runner``
+    (the player decides between compiled engine turns, with the global state, as in the
+    paper) against the task's enemy script, under the env's own rules. W, R and the draws are
+    computed from the final states as the env computes them. Battle ``i`` seeds the players
+    with ``seed + i``."""
+    from hybridmarl.engine.rules import hp_sums
+    from hybridmarl.search import make_player
+    from hybridmarl.search.runner import play_game_with_players
+
+    if task.kind != "combat":
+        raise ValueError("search players play combat only")
+    env = task.env
+    k_reset, _ = jax.random.split(jax.random.key(seed))
+    _, states = jax.jit(jax.vmap(task.reset))(jax.random.split(k_reset, n))
+    ours, enemy = make_player(player), make_player(task.spec.enemy)
+    ep: dict[str, list[float]] = {k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")}
+    ms: list[float] = []  # wall-clock time of each of our decisions
+    bar = None
+    if progress:
+        from hybridmarl.training.logger import Progress
+
+        bar = Progress(n, f"{player} vs {task.spec.enemy}", every_s=30.0)
+    for i in range(n):
+        start = jax.tree.map(lambda a, i=i: a[i], states)
+        g = play_game_with_players(start.game, env.rules, ours, enemy, seed=seed + i)
+        hp = np.asarray(hp_sums(g.final_state))
+        norm = max(int(start.init_hp[0]), 1)
+        ep["won"].append(float(g.winner == 0))
+        ep["lost"].append(float(g.winner == 1))
+        ep["draw"].append(float(g.winner not in (0, 1)))
+        ep["terminal_hp_reward"].append(float(np.float32(hp[0] - hp[1]) / np.float32(norm)))
+        ep["steps"].append(float(len(g.decisions[0])))
+        ms += [d.ms for d in g.decisions[0]]
+        if bar is not None:
+            bar.update(i + 1, f"W {np.mean(ep['won']):.2f}")
+    if bar is not None:
+        bar.close()
+    out = summarize(task, {k: np.asarray(v) for k, v in ep.items()})
+    out["ms_per_decision"] = float(np.mean(ms)) if ms else None
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _actor_policy_cached(spec: tuple[tuple[int, ...], int]):
+    return actor_policy(nets.from_spec(spec))
+
+
+@functools.lru_cache(maxsize=16)
+def _script_policy_cached(task: Task, name: str):
+    return script_policy(task, name)

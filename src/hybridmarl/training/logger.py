@@ -1,0 +1,194 @@
+"""Run logging: CSV files, TensorBoard (tensorboardX), the hyper-parameters, a progress display.
+
+Under the run directory:
+
+- ``config.json``: the full config (every hyper-parameter), the task and versions;
+- ``train.csv``: one row per training iteration (losses, BRD statistics, timings);
+- ``episodes.csv``: one row per finished training episode (its metrics);
+- ``evals.csv``: one row per periodic evaluation of the frozen policy (``--eval-every``);
+- ``tb/``: TensorBoard event files (the same scalars, plus the config as text);
+- ``curve.png``: the training curve (``algos.plots``).
+
+On ``--resume`` the CSV rows written after the checkpoint are dropped, so the files read as if
+the run had never stopped. The progress display is a rich progress bar on a terminal and a
+plain status line every few seconds otherwise (log files, CI).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from hybridmarl.io import write_json_atomic
+
+
+class CsvLog:
+    """Append-only CSV with a header fixed by the first row written."""
+
+    def __init__(self, path: Path, step_key: str) -> None:
+        self.path = path
+        self.step_key = step_key
+        self.fields: list[str] | None = None
+        if path.exists():
+            with open(path, newline="") as f:
+                reader = csv.reader(f)
+                header = next(reader, None)
+            self.fields = header or None
+
+    def truncate_after(self, step: float) -> None:
+        """Drop rows whose ``step_key`` is greater than ``step`` (resume)."""
+        if not self.path.exists():
+            return
+        with open(self.path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        keep = [r for r in rows if float(r.get(self.step_key, "0") or 0) <= step]
+        if self.fields is None:
+            return
+        with open(self.path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=self.fields)
+            w.writeheader()
+            w.writerows(keep)
+
+    def write(self, rows: list[dict[str, Any]]) -> None:
+        if not rows:
+            return
+        new = not self.path.exists() or self.fields is None
+        if self.fields is None:
+            self.fields = list(rows[0])
+        with open(self.path, "a", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=self.fields, extrasaction="ignore")
+            if new:
+                w.writeheader()
+            for r in rows:
+                w.writerow({k: _fmt(v) for k, v in r.items()})
+
+
+def _fmt(v: Any) -> Any:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    return v
+
+
+class RunLogger:
+    def __init__(self, run_dir: Path, *, tensorboard: bool = True) -> None:
+        self.run_dir = Path(run_dir)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.train = CsvLog(self.run_dir / "train.csv", "episodes")
+        self.episodes = CsvLog(self.run_dir / "episodes.csv", "episode")
+        self.evals = CsvLog(self.run_dir / "evals.csv", "episodes")
+        self.tb = None
+        if tensorboard:
+            from tensorboardX import SummaryWriter
+
+            self.tb = SummaryWriter(str(self.run_dir / "tb"), flush_secs=30)
+
+    def write_config(self, doc: dict[str, Any]) -> None:
+        write_json_atomic(self.run_dir / "config.json", doc)
+        if self.tb is not None:
+            import json
+
+            self.tb.add_text("config", "```\n" + json.dumps(doc, indent=2, sort_keys=True) + "\n```", 0)
+            for k, v in _flat(doc.get("config", {})).items():
+                self.tb.add_text(f"hparams/{k}", str(v), 0)
+
+    def resume_at(self, episodes: int) -> None:
+        self.train.truncate_after(episodes)
+        self.episodes.truncate_after(episodes)
+        self.evals.truncate_after(episodes)
+
+    def scalars(self, step: int, values: dict[str, Any], prefix: str = "train") -> None:
+        if self.tb is None:
+            return
+        for k, v in values.items():
+            if isinstance(v, int | float) and math.isfinite(float(v)):
+                self.tb.add_scalar(f"{prefix}/{k}", float(v), step)
+
+    def close(self) -> None:
+        if self.tb is not None:
+            self.tb.flush()
+            self.tb.close()
+
+
+def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        elif isinstance(v, list | tuple):
+            out[prefix + k] = str(v)
+        else:
+            out[prefix + k] = v
+    return out
+
+
+def recent_status(recent: dict[str, float], primary: str, secondary: str) -> str:
+    """The live part of the progress line: the two headline metrics over the last 100 episodes,
+    ``-`` until the first episode has finished (rather than ``nan``, which reads as a failure)."""
+
+    def fmt(name: str, spec: str) -> str:
+        v = recent.get(name, float("nan"))
+        return f"{name}@100 {'-' if not math.isfinite(v) else format(v, spec)}"
+
+    return f"{fmt(primary, '.2f')}  {fmt(secondary, '+.3f')}"
+
+
+class Progress:
+    """A rich progress bar on a terminal; a plain line every ``every_s`` seconds otherwise."""
+
+    def __init__(self, total: int, description: str, *, enabled: bool = True, every_s: float = 30.0, start: int = 0) -> None:
+        self.total = total
+        self.enabled = enabled
+        self.every_s = every_s
+        self.description = description
+        self._last = 0.0
+        self._bar = None
+        self._task = None
+        self._t0 = time.time()
+        self._start = start
+        if not enabled:
+            return
+        from rich.console import Console
+
+        console = Console(stderr=True)
+        if console.is_terminal:
+            from rich.progress import (
+                BarColumn,
+                MofNCompleteColumn,
+                TextColumn,
+                TimeElapsedColumn,
+                TimeRemainingColumn,
+            )
+            from rich.progress import Progress as RichProgress
+
+            self._bar = RichProgress(
+                TextColumn("[bold]{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("episodes"),
+                TimeElapsedColumn(),
+                TimeRemainingColumn(),
+                TextColumn("{task.fields[status]}"),
+                console=console,
+            )
+            self._bar.start()
+            self._task = self._bar.add_task(description, total=total, completed=start, status="")
+
+    def update(self, completed: int, status: str) -> None:
+        if not self.enabled:
+            return
+        if self._bar is not None and self._task is not None:
+            self._bar.update(self._task, completed=min(completed, self.total), status=status)
+            return
+        now = time.time()
+        if now - self._last >= self.every_s or completed >= self.total:
+            self._last = now
+            el = now - self._t0
+            print(f"[{self.description}] {completed}/{self.total} episodes  {el:7.0f}s  {status}", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()

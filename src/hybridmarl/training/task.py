@@ -1,0 +1,288 @@
+"""A task = an environment plus what the learners need around it, behind one small interface.
+
+The learners (``algos.hybrid``, ``algos.bc``, ...) never branch on the environment; they use a
+:class:`Task`:
+
+- ``env``: the functional environment (``hybridmarl.envs``), with its ``reset``/``step``/masks;
+- ``demonstrator(name)``: a scripted demonstrator as a pure env policy ``(key, state) -> [N]``:
+  for combat any engine script (``attack-closest`` = the paper's c, ``attack-weakest`` = w,
+  converted to env actions by ``Combat.script_policy``: attack slot -> HP rank, moves 2..5 ->
+  1..4, RELOAD/PASS -> noop); for Traffic Junction ``always-gas`` / ``yield-before-junction``.
+  ``name:eps`` adds ε-random legal actions (controlled sub-optimality, e.g. ``always-gas:0.1``);
+- ``lookahead(key, state, candidates [A, N])``: Alg. 1's one-step forward simulation
+  ``(reward [A], next_state [A], done [A])`` of A joint actions, one vmapped call (combat's own
+  ``Combat.lookahead``; for other envs ``vmap(step)`` with one shared key, so every candidate
+  sees the same random arrivals: common random numbers);
+- ``value_features(state)``: the critic's input for ``V(s)`` (``env.critic_features`` with
+  all-zero actions: combat ignores actions, and for Traffic Junction the paper's
+  per-car "action one-hot" part then only marks which cars are present);
+- ``episode_stats(state, info)``: the per-episode metrics at the end of an episode.
+
+``TaskSpec`` is the hashable, JSON-able description stored in run metadata and datasets.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from hybridmarl import envs
+from hybridmarl.errors import UserError
+from hybridmarl.io import flatten_named, unflatten_named
+
+Policy = Callable[[jax.Array, Any], jax.Array]
+
+ENV_CHOICES = ("combat", "traffic_junction")
+TJ_DEMONSTRATORS = ("always-gas", "yield-before-junction")
+#: The paper's cross-validation (Section 5.1): a model learned from c fights w and vice versa.
+CROSS_ENEMY = {"attack-closest": "attack-weakest", "attack-weakest": "attack-closest"}
+
+
+class TaskError(UserError):
+    """Bad task settings (unknown env, scenario, script, ...): a one-line message."""
+
+
+def canonical_env(name: str) -> str:
+    key = str(name).strip().lower().replace("-", "_")
+    key = {"combat_v0": "combat", "traffic_junction_v0": "traffic_junction", "tj": "traffic_junction"}.get(key, key)
+    if key not in ENV_CHOICES:
+        raise TaskError(f"unknown env {name!r} (known: {', '.join(ENV_CHOICES)})")
+    return key
+
+
+def split_demonstrator(name: str) -> tuple[str, float]:
+    """``"attack-closest:0.1"`` -> (``"attack-closest"``, 0.1)."""
+    base, _, eps = str(name).partition(":")
+    if not eps:
+        return base.strip(), 0.0
+    try:
+        e = float(eps)
+    except ValueError:
+        raise TaskError(f"demonstrator {name!r}: expected NAME or NAME:EPSILON") from None
+    if not 0.0 <= e <= 1.0:
+        raise TaskError(f"demonstrator {name!r}: epsilon must be in [0, 1]")
+    return base.strip(), e
+
+
+def canonical_script(env: str, name: str) -> str:
+    """Canonical demonstrator / enemy script name for ``env`` (keeps a ``:eps`` suffix)."""
+    base, eps = split_demonstrator(name)
+    if env == "combat":
+        from hybridmarl.engine.scripts import canonical_name
+
+        try:
+            base = canonical_name(base)
+        except KeyError as e:
+            raise TaskError(str(e.args[0])) from None
+    else:
+        key = base.lower().replace("_", "-")
+        key = {"gas": "always-gas", "yield": "yield-before-junction"}.get(key, key)
+        if key not in TJ_DEMONSTRATORS:
+            raise TaskError(f"unknown traffic_junction demonstrator {name!r} (known: {', '.join(TJ_DEMONSTRATORS)})")
+        base = key
+    return f"{base}:{eps:g}" if eps > 0 else base
+
+
+def default_enemy(demonstrator: str) -> str:
+    """The cross-validation enemy of a demonstrator (c <-> w), else attack-weakest."""
+    base = str(demonstrator).partition(":")[0].strip()
+    return CROSS_ENEMY.get(base, "attack-weakest")
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """Which environment, built how. Hashable (cache key) and JSON-able (run metadata)."""
+
+    env: str = "combat"
+    scenario: str = "m5v5"
+    enemy: str = "attack-weakest"
+    max_turns: int = 1000
+    p_arrive: float = 0.2
+    num_cars: int = 10
+    time_penalty: bool = False
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> TaskSpec:
+        fields = TaskSpec.__dataclass_fields__
+        return TaskSpec(**{k: v for k, v in d.items() if k in fields})
+
+    def label(self) -> str:
+        if self.env == "combat":
+            return f"{self.scenario} vs {self.enemy}"
+        return f"traffic_junction (p_arrive {self.p_arrive:g}{', time penalty' if self.time_penalty else ''})"
+
+
+class Task:
+    """See the module docstring."""
+
+    def __init__(self, spec: TaskSpec) -> None:
+        env_name = canonical_env(spec.env)
+        self.spec = spec
+        self.kind = env_name
+        try:
+            if env_name == "combat":
+                enemy = canonical_script("combat", spec.enemy)
+                self.env = envs.make("combat", scenario=spec.scenario, enemy=enemy, max_turns=spec.max_turns)
+                self.params = self.env.default_params
+            else:
+                self.env = envs.make("traffic_junction", num_agents=spec.num_cars)
+                self.params = self.env.default_params.replace(p_arrive=float(spec.p_arrive), time_penalty=bool(spec.time_penalty))
+        except TaskError:
+            raise
+        except (ValueError, KeyError) as e:
+            msg = str(e.args[0]) if e.args else str(e)
+            raise TaskError(msg) from None
+        self.num_agents = int(self.env.num_agents)
+        self.num_actions = int(self.env.num_actions)
+        self.obs_dim = int(np.prod(self.env.observation_shape))
+        self.critic_dim = int(self.env.critic_feature_size)
+        if env_name == "combat":
+            self.metric_names = ("won", "lost", "draw", "terminal_hp_reward")
+            #: (primary, secondary) metric of progress lines and curves: higher W, then R.
+            self.progress_metrics = ("won", "terminal_hp_reward")
+        else:
+            self.metric_names = ("failed", "success", "collisions", "arrivals")
+            self.progress_metrics = ("failed", "return")
+
+    # -- environment ------------------------------------------------------------------------------
+
+    def state_template(self) -> Any:
+        """Shapes and dtypes of one env state (``jax.ShapeDtypeStruct`` leaves; nothing runs)."""
+        if not hasattr(self, "_template"):
+            self._template = jax.eval_shape(self.reset, jax.random.key(0))[1]
+        return self._template
+
+    def reset(self, key: jax.Array) -> tuple[jax.Array, Any]:
+        obs, state = self.env.reset(key, self.params)
+        return obs.reshape((self.num_agents, -1)), state
+
+    def step(self, key: jax.Array, state: Any, actions: jax.Array):
+        obs, s2, r, d, info = self.env.step(key, state, actions, self.params)
+        return obs.reshape((self.num_agents, -1)), s2, r, d, info
+
+    def batch_step(self, keys: jax.Array, states: Any, actions: jax.Array):
+        """``jax.vmap(step)`` over a batch (same results). Combat uses ``Combat.batch_step``,
+        which advances only the games that owe enemy-only turns instead of the whole batch in
+        lockstep with its slowest game."""
+        if hasattr(self.env, "batch_step"):
+            obs, s2, r, d, info = self.env.batch_step(keys, states, actions, self.params)
+            return obs.reshape((obs.shape[0], self.num_agents, -1)), s2, r, d, info
+        return jax.vmap(self.step)(keys, states, actions)
+
+    def observe(self, state: Any) -> jax.Array:
+        return self.env.observe(state).reshape((self.num_agents, -1))
+
+    def avail(self, state: Any) -> jax.Array:
+        return self.env.get_avail_actions(state, self.params)
+
+    def value_features(self, state: Any) -> jax.Array:
+        """Critic input for ``V(s)`` (actions all zero; see the module docstring)."""
+        return self.env.critic_features(state, jnp.zeros((self.num_agents,), jnp.int32))
+
+    def lookahead(self, key: jax.Array, state: Any, cand: jax.Array):
+        """Alg. 1's one-step simulation of A candidate joint actions ``[A, N]`` from ``state``."""
+        if hasattr(self.env, "lookahead"):
+            return self.env.lookahead(key, state, cand)
+
+        def one(a: jax.Array):
+            _, s2, r, d, _ = self.env.step(key, state, a, self.params)
+            return r, s2, d
+
+        return jax.vmap(one)(cand)
+
+    def episode_stats(self, state: Any, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        """float32 metrics of an episode whose last step returned ``(state, info)``."""
+        f = jnp.float32
+        if self.kind == "combat":
+            return {k: info[k].astype(f) for k in self.metric_names}
+        return {
+            "failed": state.failed.astype(f),
+            "success": (~state.failed).astype(f),
+            "collisions": state.total_collisions.astype(f),
+            "arrivals": state.total_arrivals.astype(f),
+        }
+
+    def agent_rewards(self, state: Any, next_state: Any, done: jax.Array, info: dict[str, jax.Array]) -> jax.Array:
+        """Per-agent rewards ``[N]`` of one step (the independent learners DQfD and OGTL)."""
+        from hybridmarl.envs.rewards import agent_rewards
+
+        return agent_rewards(self.kind, self.num_agents, state, next_state, done, info)
+
+    # -- evaluation -------------------------------------------------------------------------------
+
+    @property
+    def enemy(self) -> str | None:
+        """The scripted opponent's name (combat), else None."""
+        return self.spec.enemy if self.kind == "combat" else None
+
+    def against(self, enemy: str | None) -> Task:
+        """This task with another scripted opponent (combat); tasks without one return themselves."""
+        if self.kind != "combat" or not enemy:
+            return self
+        return make_task(dataclasses.replace(self.spec, enemy=enemy))
+
+    def result_line(self, r: dict[str, Any]) -> str:
+        """One line of an evaluation result (``training.evaluate.summarize``'s dict)."""
+        if self.kind == "combat":
+            return (
+                f"eval vs {r['enemy']} ({r['n']} battles): W {r['W']:.2f} [{r['W_ci95'][0]:.2f}, {r['W_ci95'][1]:.2f}]  "
+                f"R {r['R']:+.3f} [{r['R_ci95'][0]:+.3f}, {r['R_ci95'][1]:+.3f}]"
+            )
+        return (
+            f"eval ({r['n']} episodes): failure rate {r['failure_rate']:.3f} "
+            f"[{r['failure_rate_ci95'][0]:.3f}, {r['failure_rate_ci95'][1]:.3f}]  return {r['R']:+.2f}"
+        )
+
+    # -- demonstrators ------------------------------------------------------------------------------
+
+    def demonstrator(self, name: str) -> Policy:
+        """A scripted demonstrator as a pure env policy ``(key, state) -> int32 [N]``."""
+        full = canonical_script(self.kind, name)
+        base, eps = split_demonstrator(full)
+        if self.kind == "combat":
+            policy = self.env.script_policy(base)
+        else:
+            from hybridmarl.envs import traffic_junction as tj
+
+            fn = tj.always_gas if base == "always-gas" else tj.yield_before_junction
+
+            def policy(key: jax.Array, state: Any) -> jax.Array:
+                return fn(state, key)
+
+        if eps <= 0:
+            return policy
+        return epsilon_policy(policy, self.avail, eps)
+
+
+def epsilon_policy(policy: Policy, avail_fn: Callable[[Any], jax.Array], eps: float) -> Policy:
+    """``policy`` with each agent's action replaced, with probability ``eps``, by a uniformly
+    random legal action."""
+
+    def noisy(key: jax.Array, state: Any) -> jax.Array:
+        k0, k1, k2 = jax.random.split(key, 3)
+        a = policy(k0, state)
+        legal = avail_fn(state)
+        rnd = jax.random.categorical(k2, jnp.where(legal, 0.0, -jnp.inf), axis=-1).astype(jnp.int32)
+        flip = jax.random.uniform(k1, a.shape) < eps
+        return jnp.where(flip, rnd, a).astype(jnp.int32)
+
+    return noisy
+
+
+@functools.lru_cache(maxsize=16)
+def make_task(spec: TaskSpec) -> Task:
+    """A cached :class:`Task` (one per spec, so jitted functions keyed on it are reused)."""
+    return Task(spec)
+
+
+__all__ = ["Task", "TaskError", "TaskSpec", "flatten_named", "make_task", "unflatten_named"]
