@@ -117,7 +117,8 @@ def test_every_preset_builds_and_round_trips_through_config_json():
     """Every ``--preset`` of every algo, for both envs, is a valid config that survives the
     config.json round trip that ``--resume`` relies on; the documented extension presets set
     what their docstrings say."""
-    from hybridmarl.training.config import ALGOS, algo_module, config_from_dict, config_to_dict
+    from hybridmarl.algos import ALGOS, algo_module
+    from hybridmarl.training.config import config_from_dict, config_to_dict
 
     for algo in ALGOS:
         mod = algo_module(algo)

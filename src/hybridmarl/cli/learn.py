@@ -55,7 +55,8 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 
 
 def run_train(args: list[str]) -> int:
-    from hybridmarl.training.config import ALGOS, algo_module, config_from_dict
+    from hybridmarl.algos import ALGOS, algo_module
+    from hybridmarl.training.config import config_from_dict
 
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--algo", default="hybrid")

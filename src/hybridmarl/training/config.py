@@ -15,7 +15,6 @@ OGTL, ...) = one module with those three names + one entry here.
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 import re
 import time
@@ -35,21 +34,6 @@ from hybridmarl.training.task import (
     canonical_script,
     default_enemy,
 )
-
-#: ``--algo`` name -> module implementing it.
-ALGOS: dict[str, str] = {
-    "hybrid": "hybridmarl.algos.hybrid",
-    "bc": "hybridmarl.algos.bc",
-    "dqfd": "hybridmarl.algos.dqfd",
-    "ogtl": "hybridmarl.algos.ogtl",
-}
-
-
-def algo_module(name: str) -> Any:
-    key = name.strip().lower()
-    if key not in ALGOS:
-        raise TaskError(f"unknown algo {name!r} (known: {', '.join(ALGOS)})")
-    return importlib.import_module(ALGOS[key])
 
 
 @dataclass(frozen=True)
@@ -109,6 +93,11 @@ class TrainConfig:
     """Write TensorBoard event files under ``<run_dir>/tb``."""
     progress: bool = True
     """Show a progress display (a bar on a terminal, status lines otherwise)."""
+
+    def replace(self, **changes: Any) -> Any:
+        """A copy with the given fields changed (field names as on the command line, with
+        underscores)."""
+        return dataclasses.replace(self, **changes)
 
     def task_spec(self) -> TaskSpec:
         env = canonical_env(self.env)
