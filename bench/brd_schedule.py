@@ -24,7 +24,8 @@ import time
 import jax
 import jax.numpy as jnp
 
-from hybridmarl.algos.hybrid import (
+from hybridmarl.algos.hybrid.brd import best_response_dynamics
+from hybridmarl.algos.hybrid.train import (
     PRESETS,
     _static_cfg,
     _vars,
@@ -32,7 +33,6 @@ from hybridmarl.algos.hybrid import (
     continuation_policy,
     simulated_steps,
 )
-from hybridmarl.algos.hybrid.brd import best_response_dynamics
 from hybridmarl.training import networks as nets
 from hybridmarl.training.checkpoint import load_checkpoint, subtree
 from hybridmarl.training.rollout import new_pool

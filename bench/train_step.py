@@ -22,7 +22,8 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from hybridmarl.algos.hybrid import (
+from hybridmarl.algos.hybrid.brd import best_response_dynamics
+from hybridmarl.algos.hybrid.train import (
     PRESETS,
     _static_cfg,
     _vars,
@@ -30,7 +31,6 @@ from hybridmarl.algos.hybrid import (
     continuation_policy,
     simulated_steps,
 )
-from hybridmarl.algos.hybrid.brd import best_response_dynamics
 from hybridmarl.training import networks as nets
 from hybridmarl.training.losses import actor_loss, advantages
 from hybridmarl.training.rollout import EpisodeAssembler, ReplayBuffer, new_pool

@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hybridmarl.algos import hybrid as H
+from hybridmarl.algos.hybrid import train as H
 from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
 from hybridmarl.training import networks as nets
 from hybridmarl.training.rollout import EpisodeAssembler, ReplayBuffer, new_pool

@@ -224,7 +224,7 @@ def test_act_before_update_plays_the_pre_update_actor():
     step cannot depend on the learning rate (one step: later steps play the updated actor)."""
     import dataclasses as dc
 
-    from hybridmarl.algos.hybrid import PRESETS, build_learner
+    from hybridmarl.algos.hybrid.train import PRESETS, build_learner
     from hybridmarl.training.rollout import new_pool
     from hybridmarl.training.task import TaskSpec, make_task
 
@@ -251,7 +251,7 @@ def test_lookahead_continuation_is_the_chosen_policy():
     ``lookahead_policy`` picks who continues (``start`` follows ``brd_start``)."""
     import dataclasses as dc
 
-    from hybridmarl.algos.hybrid import PRESETS, build_learner, continuation_policy
+    from hybridmarl.algos.hybrid.train import PRESETS, build_learner, continuation_policy
     from hybridmarl.training.rollout import new_pool
 
     task = make_task(TaskSpec(env="combat", scenario="m3v3", enemy="attack-weakest"))

@@ -197,7 +197,7 @@ def test_checkpoint_round_trip_and_pruning(tmp_path):
 
 
 def test_weight_average_is_the_running_mean():
-    from hybridmarl.algos.hybrid import _running_mean
+    from hybridmarl.algos.hybrid.train import _running_mean
 
     snaps = [{"params": {"w": jnp.asarray([x, 2 * x])}, "batch_stats": {"m": jnp.asarray(-x)}} for x in (1.0, 2.0, 3.0, 6.0)]
     avg = snaps[0]
@@ -211,7 +211,7 @@ def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
     """--eval-every/--keep-best: due every k episodes, evaluated on the selection seed (never the
     final evaluation's), a row per evaluation, ``best`` replaced only on improvement (W, then R),
     and the comparison survives a resume through checkpoint metadata."""
-    from hybridmarl.algos.hybrid import HybridConfig
+    from hybridmarl.algos.hybrid.train import HybridConfig
     from hybridmarl.training.config import (
         FINAL_EVAL_SEED,
         SELECT_EVAL_SEED,
@@ -265,7 +265,7 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
     (The demonstrator is a dataset, i.e. its behavioural clone, as in test_algos_cli.) With
     ``actor_buffer`` the actor learns between chunks from the buffer of Alg. 1 labels, which the
     checkpoint must carry too."""
-    from hybridmarl.algos.hybrid import PRESETS, train
+    from hybridmarl.algos.hybrid.train import PRESETS, train
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
     from hybridmarl.training.evaluate import load_policy
 
@@ -326,7 +326,7 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
 
 
 def test_tj_time_penalty_reaches_the_task_and_costs_tau_per_car():
-    from hybridmarl.algos.hybrid import HybridConfig
+    from hybridmarl.algos.hybrid.train import HybridConfig
 
     spec = HybridConfig(env="traffic_junction", time_penalty=True).task_spec()
     assert spec.time_penalty and "time penalty" in spec.label()
@@ -359,7 +359,7 @@ def test_tj_replay_reports_the_time_penalty():
 def test_time_limit_stops_alg2_and_still_evaluates(tmp_path, capsys):
     """``time_limit_min``: Alg. 2 stops at the first chunk boundary past the limit; the run is
     then checkpointed and evaluated as usual, and ``eval.json`` says the clock stopped it."""
-    from hybridmarl.algos.hybrid import PRESETS, train
+    from hybridmarl.algos.hybrid.train import PRESETS, train
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
 
     cfg = dataclasses.replace(
