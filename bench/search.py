@@ -14,7 +14,7 @@ distinct start states (the first decision of a game, where every unit of both si
 - PGS with no time limit (I = 1, R = 0): ms per decision and its playout count;
 
 each as min / median, with the compile time of each player's programs measured separately
-(``warmup``), next to SparCraft's own figures measured on one core (sparcraft.md §7.2).
+(``warmup``), next to SparCraft's own figures measured on one core (docs/speed.md#sparcraft-reference-figures).
 
 Sanity: on 8v8 symmetric states where NOKDPS vs NOKDPS is a draw by symmetry, UCT-CD and PGS
 (and ABCD with ``--sanity-players``) play NOKDPS with their default budgets, the search player
@@ -43,7 +43,7 @@ from hybridmarl.search import make_player, play_game_with_players
 
 MARINE = "Terran_Marine"
 
-#: sparcraft.md §7.2: DC-HEAD, one core, StateSymmetric-like Marine states, two runs as a range.
+#: docs/speed.md#sparcraft-reference-figures: DC-HEAD, one core, StateSymmetric-like Marine states, two runs as a range.
 SPARCRAFT = {
     8: {"uct_traversals_40ms": [165, 240], "ab_nodes_40ms": [150, 350], "ab_depth": 3, "ab_ms": [40, 46], "pgs_ms": [4.4, 6.1], "pgs_playouts": 20},
     16: {"uct_traversals_40ms": [80, 105], "ab_nodes_40ms": [150, 200], "ab_depth": 3, "ab_ms": [45, 52], "pgs_ms": [17, 17], "pgs_playouts": 36},

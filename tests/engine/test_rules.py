@@ -1,4 +1,4 @@
-"""Hand-computed dynamics (sparcraft.md §1, §2, §6.5): damage, timing, move lengths, ranges,
+"""Hand-computed dynamics (docs/engine.md#unit-types; docs/engine.md#turn-structure; docs/engine.md#reference-traces): damage, timing, move lengths, ranges,
 interpolation, overkill, walkability, evaluations and game end."""
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from hybridmarl.engine.trace import record_trace
 
 M = "Terran_Marine"
 
-# sparcraft.md §1: rows attackers, columns targets.
+# docs/engine.md#unit-types: rows attackers, columns targets.
 DAMAGE_TABLE = {
     "Terran_Marine": [6, 5, 5, 6, 5, 6, 6],
     "Protoss_Zealot": [16, 14, 14, 16, 14, 16, 16],
@@ -70,7 +70,7 @@ def test_move_lengths_of_other_units_use_double_precision():
 
 
 def test_one_v_one_marines_both_die_at_frame_102(rules):
-    """sparcraft.md §6.5: P0 at (100,100), P1 at (300,100), both AttackClosest: two 16-px moves
+    """docs/engine.md#reference-traces: P0 at (100,100), P1 at (300,100), both AttackClosest: two 16-px moves
     each, shots at t = 8, 27, 42, 57, 72, 87, 102, both dead at t = 102 after 15 turns."""
     units = [UnitSpec(M, 0, 100, 100), UnitSpec(M, 1, 300, 100)]
     tr = record_trace(units, build_state(units), rules, "attack-closest", "attack-closest")
@@ -261,7 +261,7 @@ def test_no_jit_equals_jit(rules):
     ],
 )
 def test_reference_3v3_outcomes(p0, p1, winner, survivor_hp, turns, final_time):
-    """sparcraft.md §6.5: the 3v3 Marine state and its four script pairings."""
+    """docs/engine.md#reference-traces: the 3v3 Marine state and its four script pairings."""
     units = []
     for a, b in zip([(100, 80), (100, 100), (100, 130)], [(290, 90), (300, 100), (310, 110)], strict=True):
         units += [UnitSpec(M, 0, *a), UnitSpec(M, 1, *b)]

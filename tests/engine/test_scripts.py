@@ -1,4 +1,4 @@
-"""Hand-built situations for script semantics and tie-breaks (sparcraft.md §3)."""
+"""Hand-built situations for script semantics and tie-breaks (docs/engine.md#scripts)."""
 
 from __future__ import annotations
 

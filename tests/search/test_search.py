@@ -139,7 +139,7 @@ def test_abcd_batching_does_not_change_the_search(rules, decision_states):
 
 @pytest.mark.parametrize("n", [2, 3, 4])
 def test_pgs_playout_count(n, rules):
-    """I = 1, R = 0: 2|P| seed playouts + |P| per living unit = 4 + 2n (sparcraft.md §4.3)."""
+    """I = 1, R = 0: 2|P| seed playouts + |P| per living unit = 4 + 2n (docs/baselines.md#pgs)."""
     state = build_state(_sym(n, 20 + n), SLOTS)
     player = make_player(PGS)
     assert isinstance(player, PGSPlayer)

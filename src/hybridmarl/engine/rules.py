@@ -1,6 +1,6 @@
 """SparCraft's combat rules (DC-HEAD semantics) as pure JAX functions over ``GameState``.
 
-One decision turn (sparcraft.md §2.4, §2.11):
+One decision turn (docs/engine.md#turn-structure):
 
 1. ``turn_context(state)``: who moves (the side(s) whose first unit in SparCraft's sort order has
    the smallest free time), which units act (the leading block: every living unit of a moving side

@@ -14,7 +14,7 @@ Named scenarios: ``m<A>v<B>`` is a Marine battle, A Marines of ours (player 0, l
 (player 1, right). The default geometry is **contact**: disk centres 150 px apart around the map
 centre ((565, 352) and (715, 352)), radius 100 px. Of the contact geometries we swept
 (``experiments/demonstrator_geometry.py``) it reproduces the paper's demonstrator rows (Table 1,
-D_c and D_w, attack-closest vs attack-weakest in both directions) best. ``m<A>v<B>-apart`` uses the reference playouts' main setting (sparcraft.md §6.2):
+D_c and D_w, attack-closest vs attack-weakest in both directions) best. ``m<A>v<B>-apart`` uses the reference playouts' main setting (docs/engine.md#start-states-and-scenarios):
 centres (440, 352) and (840, 352), radius 100 px. Any other geometry or unit mix comes from a
 scenario file (``load_scenario_file``).
 """
@@ -285,7 +285,7 @@ PAPER_SCENARIOS = ("m5v5", "m30v30", "m18v20", "m24v30")
 
 
 def named_scenario(name: str) -> Scenario:
-    """``m<A>v<B>`` (contact geometry) or ``m<A>v<B>-apart`` (sparcraft.md §6.2 main setting)."""
+    """``m<A>v<B>`` (contact geometry) or ``m<A>v<B>-apart`` (docs/engine.md#start-states-and-scenarios main setting)."""
     m = _MARINE_RE.match(name.strip().lower())
     if not m:
         raise InputError(
@@ -304,7 +304,7 @@ def named_scenario(name: str) -> Scenario:
             center1=APART_CENTERS[1],
             radius0=APART_RADIUS,
             radius1=APART_RADIUS,
-            description=f"{a} vs {b} Marines, disks r={APART_RADIUS} px centred 400 px apart (sparcraft.md §6.2)",
+            description=f"{a} vs {b} Marines, disks r={APART_RADIUS} px centred 400 px apart (docs/engine.md#start-states-and-scenarios)",
         )
     cx, cy = DEFAULT_MAP_WIDTH_PX // 2, DEFAULT_MAP_HEIGHT_PX // 2
     half = CONTACT_SEPARATION // 2

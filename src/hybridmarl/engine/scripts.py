@@ -1,4 +1,4 @@
-"""SparCraft's scripted players as batched pure functions (sparcraft.md §3).
+"""SparCraft's scripted players as batched pure functions (docs/engine.md#scripts).
 
 A script maps ``(key, state, ctx, p)`` to one action code per unit slot of player ``p`` (see
 ``rules``); only the acting units' entries are used. Every tie-break is SparCraft's:
@@ -210,7 +210,7 @@ def nokdps(key: jax.Array, state: GameState, ctx: TurnContext, p: int) -> jax.Ar
 
 def kiter_nokdps(key: jax.Array, state: GameState, ctx: TurnContext, p: int) -> jax.Array:
     """NOKDPS targeting with kiting; in cooldown with the closest enemy in range the scan stops at
-    RELOAD before any MOVE is scored, so it RELOADs instead of retreating (sparcraft.md §3)."""
+    RELOAD before any MOVE is scored, so it RELOADs instead of retreating (docs/engine.md#scripts)."""
     del key
     target, found = _nok_targets(state, ctx, p)
     closest = closest_enemy(state, ctx, p)

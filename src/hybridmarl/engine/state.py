@@ -82,7 +82,7 @@ def make_rules(
 ) -> Rules:
     """Rules with SparCraft DC-HEAD defaults: 1280x704 all-walkable map, stalemate after >50 turns
     with no HP change, an attack on a target killed earlier in the turn becomes a PASS, and the
-    SearchExperiment turn cap of 20,000 (sparcraft.md §2.8)."""
+    SearchExperiment turn cap of 20,000 (docs/engine.md#game-end)."""
     if overkill not in ("pass", "classic"):
         raise ValueError(f"overkill must be 'pass' or 'classic', got {overkill!r}")
     grid = default_walkable() if walkable is None else np.asarray(walkable, dtype=bool)

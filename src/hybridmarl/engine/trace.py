@@ -1,4 +1,4 @@
-"""Turn-by-turn traces in the text format of ``shared/reference/sparcraft_traces``.
+"""Turn-by-turn traces in the text format of SparCraft's reference traces (``tests/data/sparcraft_traces``; docs/engine.md#reference-traces).
 
 ``record_trace`` plays a game turn by turn (one jitted turn function, a host loop) and returns the
 same records the reference C++ tracer printed; ``parse_trace`` reads a reference file. Tests compare

@@ -1,6 +1,6 @@
 """Unit data: SparCraft's unit table, and the per-type lookup tables the engine uses.
 
-Every number comes from ``shared/reference/sparcraft.md`` §1 (SparCraft DC-HEAD with its bundled
+Every number is SparCraft's (docs/engine.md#unit-types; SparCraft DC-HEAD with its bundled
 BWAPI tables, no upgrades). Tables that involve floating point (move length, move duration,
 damage-per-frame) are computed here once, in NumPy float64 / float32 exactly as SparCraft computes
 them in C++ (double for move lengths, float for dpf), so the jitted engine only does integer
@@ -36,7 +36,7 @@ SIZE_MULTIPLIER = np.array(
 
 @dataclass(frozen=True)
 class UnitType:
-    """One row of the unit table (sparcraft.md §1)."""
+    """One row of the unit table (docs/engine.md#unit-types)."""
 
     name: str
     hp: int
@@ -83,7 +83,7 @@ MAX_T_ATK = 64
 
 
 def hit_damage(attacker: UnitType, target: UnitType) -> int:
-    """Damage of one ATTACK action (sparcraft.md §2.6), no upgrades."""
+    """Damage of one ATTACK action (docs/engine.md#action-effects-and-timing), no upgrades."""
     base = attacker.damage - target.armor
     dmg = max(int(base * SIZE_MULTIPLIER[attacker.damage_type, target.size]), MIN_DAMAGE)
     return dmg * attacker.hits

@@ -1,7 +1,7 @@
 """Alpha-Beta Considering Durations (ABCD; Churchill, Saffidine & Buro, AIIDE 2012; SparCraft
 ``AlphaBetaSearch`` with ``IDAlphaBeta``).
 
-What it does (sparcraft.md §4.1): iterative deepening alpha-beta, depths 1, 2, ... up to 50, over
+What it does (docs/baselines.md#abcd): iterative deepening alpha-beta, depths 1, 2, ... up to 50, over
 joint moves of one side at a time; the result is the best root move of the last completed depth,
 or the fallback script's (NOKDPS) move if depth 1 does not complete in the budget.
 

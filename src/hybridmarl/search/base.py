@@ -31,35 +31,35 @@ Keyword ``options`` override the string's. Examples::
     abcd:time_ms=0,nodes=500             # deterministic budget
     pgs:time_ms=0,portfolio=nokdps+kiter-dps,iterations=1,responses=0
 
-Options (defaults from SparCraft; sections of ``shared/reference/sparcraft.md``)::
+Options (defaults from SparCraft; docs/baselines.md describes each player)::
 
     common to uct and abcd
-      max_children=20          children per node (sample config, §4.1, §4.2); alias children=
-      ordering=nokdps+kiter-dps ScriptFirst ordering scripts ('none': plain odometer) (§3, §4.1)
-      playout0=nokdps          player 0's playout script (P0Script, sample config) (§4.1)
+      max_children=20          children per node (sample config); alias children=
+      ordering=nokdps+kiter-dps ScriptFirst ordering scripts ('none': plain odometer)
+      playout0=nokdps          player 0's playout script (P0Script, sample config)
       playout1=nokdps          player 1's playout script (P1Script); playout=X sets both
-      eval=playout             leaf evaluation: playout | ltd2 | ltd (§2.9)
+      eval=playout             leaf evaluation: playout | ltd2 | ltd
       player_to_move=alternate first mover below the root: alternate | not-alternate | random
       opponent_model=none      script the opponent is assumed to play (one child at its nodes)
     uct
-      time_ms=40               wall-clock budget per decision, 0 = none (§4.2, CIG 2013)
-      traversals=5000          traversal cap (sample config, §4.2)
-      c=1.6                    UCB exploration constant (sample config, §4.2)
+      time_ms=40               wall-clock budget per decision, 0 = none (CIG 2013)
+      traversals=5000          traversal cap (sample config)
+      c=1.6                    UCB exploration constant (sample config)
       root_select=most-visited most-visited | highest-value (SparCraft's default: most visited)
       batch=auto               leaves per engine call (leaf parallelism; 1 = serial UCT)
     abcd
-      time_ms=40               wall-clock budget per decision, 0 = none (sample config, §4.1)
+      time_ms=40               wall-clock budget per decision, 0 = none (sample config)
       nodes=0                  node budget (deterministic), 0 = none; needs time_ms or nodes
-      max_depth=50             iterative deepening limit (SearchExperiment, §4.1)
+      max_depth=50             iterative deepening limit (SearchExperiment)
       tt=true, tt_size=100000  transposition table (Constants::Transposition_Table_Size)
-      fallback=nokdps          move when depth 1 does not finish (§4.1)
+      fallback=nokdps          move when depth 1 does not finish
       batch=auto               leaf playouts per engine call after the eldest (1 = serial)
     pgs
-      time_ms=40               budget per decision, checked before each unit, 0 = none (§4.3)
+      time_ms=40               budget per decision, checked before each unit, 0 = none
       playouts=0               playout budget (deterministic), 0 = none
-      portfolio=nokdps+kiter-dps  script portfolio (hard-coded in SparCraft, §4.3)
-      enemy_seed=nokdps        enemy script while seeding (§4.3)
-      iterations=1, responses=0, playout_turns=100   I, R and the playout cap (§4.3, §2.8)
+      portfolio=nokdps+kiter-dps  script portfolio (hard-coded in SparCraft)
+      enemy_seed=nokdps        enemy script while seeding
+      iterations=1, responses=0, playout_turns=100   I, R and the playout cap
       lookahead=1              1: one unit per engine call; 2: speculative unit pairs (same result)
     any search
       script=NAME              shorthand: ordering and playouts (and abcd's fallback; pgs's
@@ -140,43 +140,43 @@ def _opt(name: str, kind: str, default: Any, help: str, choices: tuple[str, ...]
 
 
 _COMMON_SEARCH = (
-    _opt("max_children", "int", 20, "children per node; 20 in SparCraft's sample config (sparcraft.md §4.1, §4.2)", minimum=1),
-    _opt("ordering", "scripts", ("nokdps", "kiter-dps"), "ScriptFirst move ordering scripts, first children of every node; 'none' = plain odometer (§3, §4.1)"),
-    _opt("playout0", "script", "nokdps", "player 0's playout script (SparCraft's P0Script; sample config NOKDPS, §4.1)"),
+    _opt("max_children", "int", 20, "children per node; 20 in SparCraft's sample config (docs/baselines.md#abcd; docs/baselines.md#uct-cd)", minimum=1),
+    _opt("ordering", "scripts", ("nokdps", "kiter-dps"), "ScriptFirst move ordering scripts, first children of every node; 'none' = plain odometer"),
+    _opt("playout0", "script", "nokdps", "player 0's playout script (SparCraft's P0Script; sample config NOKDPS)"),
     _opt("playout1", "script", "nokdps", "player 1's playout script (P1Script; sample config NOKDPS)"),
-    _opt("eval", "choice", "playout", "leaf evaluation: playout (200-turn script playout + LTD2), ltd2 or ltd (§2.9)", choices=K.EVAL_METHODS),
-    _opt("player_to_move", "choice", "alternate", "first mover at simultaneous nodes below the root (sample config Alternate, §4.1)", choices=("alternate", "not-alternate", "random")),
+    _opt("eval", "choice", "playout", "leaf evaluation: playout (200-turn script playout + LTD2), ltd2 or ltd", choices=K.EVAL_METHODS),
+    _opt("player_to_move", "choice", "alternate", "first mover at simultaneous nodes below the root (sample config Alternate)", choices=("alternate", "not-alternate", "random")),
     _opt("opponent_model", "script?", None, "script the opponent is assumed to play (one child at its nodes); sample config None"),
 )
 
 UCT_OPTIONS: tuple[Option, ...] = (
-    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, 0 = none (sample config / CIG 2013: 40 ms, §4.2)", minimum=0),
-    _opt("traversals", "int", 5000, "maximum traversals per decision (sample config 5000, §4.2)", minimum=1),
-    _opt("c", "float", 1.6, "UCB exploration constant (sample config 1.6, §4.2)", minimum=0),
+    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, 0 = none (sample config / CIG 2013: 40 ms)", minimum=0),
+    _opt("traversals", "int", 5000, "maximum traversals per decision (sample config 5000)", minimum=1),
+    _opt("c", "float", 1.6, "UCB exploration constant (sample config 1.6)", minimum=0),
     *_COMMON_SEARCH,
     _opt("root_select", "choice", "most-visited", "root move: most visited child (SparCraft default) or highest UCB value", choices=("most-visited", "highest-value")),
     _opt("batch", "batch", "auto", "leaf-parallel batch: leaves evaluated per engine call (virtual loss); 1 = SparCraft's serial UCT; auto = by army size, see auto_batch (our deviation)"),
 )
 
 ABCD_OPTIONS: tuple[Option, ...] = (
-    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, 0 = none (sample config 40 ms, §4.1)", minimum=0),
+    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, 0 = none (sample config 40 ms)", minimum=0),
     _opt("nodes", "int", 0, "deterministic budget: stop after this many nodes (SparCraft's nodesExpanded), 0 = none", minimum=0),
-    _opt("max_depth", "int", 50, "iterative deepening limit (SearchExperiment's IDAlphaBeta: 50, §4.1)", minimum=1),
+    _opt("max_depth", "int", 50, "iterative deepening limit (SearchExperiment's IDAlphaBeta: 50)", minimum=1),
     *_COMMON_SEARCH,
-    _opt("tt", "bool", True, "transposition table (100,000 entries, scan 10, kept across decisions of a game, §4.1)"),
+    _opt("tt", "bool", True, "transposition table (100,000 entries, scan 10, kept across decisions of a game)"),
     _opt("tt_size", "int", 100_000, "transposition table entries (Constants::Transposition_Table_Size)", minimum=16),
-    _opt("fallback", "script", "nokdps", "move when depth 1 does not complete (SparCraft: NOKDPS, §4.1)"),
+    _opt("fallback", "script", "nokdps", "move when depth 1 does not complete (SparCraft: NOKDPS)"),
     _opt("batch", "batch", "auto", "leaf playouts per engine call after the eldest child (young-brothers-wait batching); 1 = serial; auto = by army size, at most max_children (our deviation)"),
 )
 
 PGS_OPTIONS: tuple[Option, ...] = (
-    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, checked before each unit, 0 = none (CIG 2013: 40 ms; sample config 0, §4.3)", minimum=0),
+    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, checked before each unit, 0 = none (CIG 2013: 40 ms; sample config 0)", minimum=0),
     _opt("playouts", "int", 0, "deterministic budget: stop improving once this many playouts ran, 0 = none", minimum=0),
-    _opt("portfolio", "scripts", ("nokdps", "kiter-dps"), "script portfolio, in order (hard-coded {NOKDPS, KiterDPS} in SparCraft, §4.3)"),
-    _opt("enemy_seed", "script", "nokdps", "enemy script while seeding (Player_PortfolioGreedySearch default NOKDPS, §4.3)"),
-    _opt("iterations", "int", 1, "improvement passes I (default 1, §4.3)", minimum=1),
-    _opt("responses", "int", 0, "response rounds R (default 0, §4.3)", minimum=0),
-    _opt("playout_turns", "int", K.PGS_PLAYOUT_TURNS, "playout cap; the loop runs while rounds <= cap, i.e. up to cap+1 turns (§2.8)", minimum=1),
+    _opt("portfolio", "scripts", ("nokdps", "kiter-dps"), "script portfolio, in order (hard-coded {NOKDPS, KiterDPS} in SparCraft)"),
+    _opt("enemy_seed", "script", "nokdps", "enemy script while seeding (Player_PortfolioGreedySearch default NOKDPS)"),
+    _opt("iterations", "int", 1, "improvement passes I (default 1)", minimum=1),
+    _opt("responses", "int", 0, "response rounds R (default 0)", minimum=0),
+    _opt("playout_turns", "int", K.PGS_PLAYOUT_TURNS, "playout cap; the loop runs while rounds <= cap, i.e. up to cap+1 turns", minimum=1),
     _opt("lookahead", "lookahead", 1, "1: one unit's candidates per engine call (SparCraft's order); 2: a pair of units per call, speculatively, same result (measured: at most ~10% faster)"),
 )
 
@@ -456,7 +456,7 @@ def deadline_from(t0: float, time_ms: float) -> float:
 
 def eval_params(method: str) -> tuple[int, bool]:
     """(playout cap, use LTD) of an evaluation method: a 200-turn playout scored by LTD2, or the
-    state's own LTD2 / LTD (sparcraft.md §2.9)."""
+    state's own LTD2 / LTD (docs/engine.md#evaluation-ltd-and-ltd2)."""
     if method == "playout":
         return K.PLAYOUT_TURNS, False
     return 0, method == "ltd"

@@ -229,7 +229,7 @@ def _leaf_value(
 
     ``Playout`` is a script playout of at most ``cap`` turns scored by evalLTD2 of its final state;
     ``LTD2`` / ``LTD`` are ``cap = 0`` (the state itself) with ``use_ltd`` choosing the score. The
-    +-100000 bonus looks at the state being evaluated (sparcraft.md §2.9); 0 when both are dead."""
+    +-100000 bonus looks at the state being evaluated (docs/engine.md#evaluation-ltd-and-ltd2); 0 when both are dead."""
     dead = R.player_dead(state)
     me_dead = jnp.where(player == 0, dead[0], dead[1])
     en_dead = jnp.where(player == 0, dead[1], dead[0])

@@ -1,7 +1,7 @@
 """Host-side move generation shared by UCT-CD and ABCD (``MoveArray`` + ``generateOrderedMoves``).
 
 A *move* of a player is one action code per acting unit (a joint vector). A node's children are,
-in order (sparcraft.md §4.1):
+in order (docs/baselines.md#abcd):
 
 1. the ordering scripts' moves (ScriptFirst: NOKDPS, then KiterDPS by default), duplicates kept;
 2. then the cartesian product of the units' legal-action lists in odometer order, unit 0 (the

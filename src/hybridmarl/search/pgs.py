@@ -1,6 +1,6 @@
 """Portfolio Greedy Search (PGS; Churchill & Buro, CIG 2013; SparCraft ``PortfolioGreedySearch``).
 
-What it does (sparcraft.md §4.3): searches over assignments of *scripts to units* by greedy
+What it does (docs/baselines.md#pgs): searches over assignments of *scripts to units* by greedy
 hill-climbing with playout evaluation.
 
 1. **Seed**: for our side, try each portfolio script as the script of all our units, with every

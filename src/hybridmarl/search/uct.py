@@ -1,6 +1,6 @@
 """UCT Considering Durations (UCT-CD; Churchill & Buro, CIG 2013; SparCraft ``UCTSearch``).
 
-What it does (sparcraft.md §4.2): a Monte-Carlo tree search over joint moves of one side at a
+What it does (docs/baselines.md#uct-cd): a Monte-Carlo tree search over joint moves of one side at a
 time. Time jumps to the next decision turn; when both sides can act, the joint move is split into
 a **FirstSim** node (the first mover's vector, not applied yet) and a **SecondSim** child that
 applies both vectors and then ``finishedMoving``; nodes where one side acts are **Solo** nodes.
