@@ -39,7 +39,7 @@ import tyro
 from hybridmarl.errors import UserError
 
 
-def _exit_code(result: Any) -> int:
+def train_exit_code(result: Any) -> int:
     """A learner's ``train`` returns its exit code (an int) or a result object (success)."""
     return result if isinstance(result, int) and not isinstance(result, bool) else 0
 
@@ -92,7 +92,7 @@ def train_command(args: list[str]) -> int:
         f"--preset {{{', '.join(mod.PRESETS)}}} (default {default_preset}) sets the defaults below."
     )
     cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
-    return _exit_code(mod.train(cfg))
+    return train_exit_code(mod.train(cfg))
 
 
 # -- eval ------------------------------------------------------------------------------------------------

@@ -147,9 +147,9 @@ def training_config(cfg: QuickstartConfig, demonstrator: str, enemy: str, run_di
     changes: dict[str, Any] = {
         "scenario": cfg.scenario, "demonstrator": demonstrator, "enemy": enemy, "seed": cfg.seed,
         "run_dir": str(run_dir), "resume": resume, "progress": cfg.progress,
-        # TensorBoard event files only where tensorboardX is installed (the "tensorboard" extra).
-        "tensorboard": bool(base.tensorboard) and importlib.util.find_spec("tensorboardX") is not None,
     }
+    if importlib.util.find_spec("tensorboardX") is None:
+        changes["tensorboard"] = False  # event files need the "tensorboard" extra
     if cfg.total_episodes is not None:
         if cfg.total_episodes < 1:
             raise UserError("--total-episodes must be at least 1")
@@ -161,7 +161,7 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     """Train (or resume, or reuse), evaluate, compare and replay as the module describes; return
     0 (or a learner's non-zero exit code). Raises :class:`UserError` on bad input."""
     from hybridmarl.algos import algo_module
-    from hybridmarl.cli.learn import _exit_code
+    from hybridmarl.cli.learn import train_exit_code
     from hybridmarl.io import write_json_atomic, write_text_atomic
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
@@ -181,7 +181,7 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     if (run_dir / "eval.json").is_file():
         print(f"{run_dir} holds a finished run: reusing it (delete the directory to retrain)")
     else:
-        rc = _exit_code(algo_module(ALGO).train(train_cfg))
+        rc = train_exit_code(algo_module(ALGO).train(train_cfg))
         if rc != 0:
             return rc
     train_s = time.time() - t0
