@@ -88,7 +88,7 @@ def test_train_and_eval_combat(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "no checkpoint '999'" in err[0] and older.name in err[0], err
     # The main job on the finished run (reused, not retrained): D vs ours table, files, replay.
-    assert main(["quickstart", "--run-dir", str(run), "--scenario", "m3v3", "--n", "4", "--no-progress"]) == 0
+    assert main(["quickstart", "--run-dir", str(run), "--scenario", "m3v3", "--preset", "toy", "--n", "4", "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "reusing it" in out and "| D |" in out and "| Ours |" in out
     doc = json.loads((run / "comparison.json").read_text())

@@ -19,8 +19,10 @@ Demonstrations::
         --n 10000 --out demos/m5v5-c.safetensors
     hybridmarl demos info demos/m5v5-c.safetensors
 
-Bad input (unknown script or scenario, an invalid dataset, a missing run) prints one line and
-exits with code 2; a diverged training run (NaN) exits with code 3.
+Bad input (unknown script or scenario, an invalid dataset, a missing run) raises
+:class:`~hybridmarl.errors.UserError` (one line on stderr, exit code 2); a diverged training run
+(NaN) raises :class:`~hybridmarl.errors.TrainingDiverged` (exit code 3); see
+:mod:`hybridmarl.cli.main`.
 """
 
 from __future__ import annotations
@@ -28,36 +30,35 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import tyro
 
-EXIT_BAD_INPUT = 2
+from hybridmarl.errors import UserError
 
 
-def _fail(msg: str) -> int:
-    print(f"hybridmarl: error: {msg}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from hybridmarl.training.checkpoint import CheckpointError
-    from hybridmarl.training.demos import DatasetError
-    from hybridmarl.training.task import TaskError
-
-    return (TaskError, DatasetError, CheckpointError)
+def train_exit_code(result: Any) -> int:
+    """A learner's ``train`` returns its exit code (an int) or a result object (success)."""
+    return result if isinstance(result, int) and not isinstance(result, bool) else 0
 
 
 # -- train -----------------------------------------------------------------------------------------------
 
 
-def run_train(args: list[str]) -> int:
-    from hybridmarl.algos import ALGOS, algo_module
-    from hybridmarl.training.config import config_from_dict
+def train_command(args: list[str]) -> int:
+    """``hybridmarl train [--algo A] [--preset P] [--env E] [--run-dir D] [--resume] [options]``.
 
+    ``--algo`` picks the learner and ``--preset`` its starting config (default
+    ``hybridmarl.algos.DEFAULT_PRESET``); every field of the config can then be given on the
+    command line. ``--resume`` with ``--run-dir`` and no ``--preset`` starts from the run's own
+    ``config.json``."""
+    from hybridmarl import algos
+    from hybridmarl.training.config import config_from_dict
+    from hybridmarl.training.task import canonical_env
+
+    default_preset: str = getattr(algos, "DEFAULT_PRESET", "quick")
     pre = argparse.ArgumentParser(add_help=False)
     pre.add_argument("--algo", default="hybrid")
     pre.add_argument("--preset", default=None)
@@ -65,27 +66,21 @@ def run_train(args: list[str]) -> int:
     pre.add_argument("--run-dir", "--run_dir", dest="run_dir", default=None)
     pre.add_argument("--resume", action="store_true")
     known, rest = pre.parse_known_args(args)
-    errors = _user_errors()
-    try:
-        mod = algo_module(known.algo)
-        from hybridmarl.training.task import canonical_env
-
-        env = canonical_env(known.env)
-        # --resume with a run directory and no preset: start from the run's own config.
-        saved = Path(known.run_dir) / "config.json" if known.run_dir else None
-        if known.resume and known.preset is None and saved is not None and saved.is_file():
-            doc = json.loads(saved.read_text())
-            if doc.get("algo") != mod.ALGO:
-                raise _user_errors()[0](f"{known.run_dir} is a {doc.get('algo')!r} run, not {mod.ALGO!r}")
-            default = config_from_dict(type(mod.PRESETS["paper"](env)), doc["config"])
-            env = default.env
-        else:
-            preset = known.preset or "paper"
-            if preset not in mod.PRESETS:
-                raise _user_errors()[0](f"unknown preset {preset!r} for --algo {known.algo} (known: {', '.join(mod.PRESETS)})")
-            default = mod.PRESETS[preset](env)
-    except errors as e:
-        return _fail(str(e))
+    mod = algos.algo_module(known.algo)
+    env = canonical_env(known.env)
+    # --resume with a run directory and no preset: start from the run's own config.
+    saved = Path(known.run_dir) / "config.json" if known.run_dir else None
+    if known.resume and known.preset is None and saved is not None and saved.is_file():
+        doc = json.loads(saved.read_text())
+        if doc.get("algo") != mod.ALGO:
+            raise UserError(f"{known.run_dir} is a {doc.get('algo')!r} run, not {mod.ALGO!r}")
+        default = config_from_dict(type(mod.PRESETS[default_preset](env)), doc["config"])
+        env = default.env
+    else:
+        preset = known.preset or default_preset
+        if preset not in mod.PRESETS:
+            raise UserError(f"unknown preset {preset!r} for --algo {known.algo} (known: {', '.join(mod.PRESETS)})")
+        default = mod.PRESETS[preset](env)
     cls = type(default)
     extra = ["--env", env]
     if known.run_dir:
@@ -93,14 +88,11 @@ def run_train(args: list[str]) -> int:
     if known.resume:
         extra += ["--resume"]
     desc = (
-        f"{(cls.__doc__ or '').strip()}\n\n--algo {{{', '.join(ALGOS)}}} (default hybrid); "
-        f"--preset {{{', '.join(mod.PRESETS)}}} (default paper) sets the defaults below."
+        f"{(cls.__doc__ or '').strip()}\n\n--algo {{{', '.join(algos.ALGOS)}}} (default hybrid); "
+        f"--preset {{{', '.join(mod.PRESETS)}}} (default {default_preset}) sets the defaults below."
     )
     cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
-    try:
-        return int(mod.train(cfg))
-    except errors as e:
-        return _fail(str(e))
+    return train_exit_code(mod.train(cfg))
 
 
 # -- eval ------------------------------------------------------------------------------------------------
@@ -114,16 +106,16 @@ class EvalConfig:
     """Run directory of the policy (its newest checkpoint)."""
     checkpoint: str | None = None
     """With --run-dir: evaluate this checkpoint instead of the newest, by its episode count
-    (``700``) or its name (``ckpt_000000700``); the run keeps its last ``keep_checkpoints``.
-    ``best``: the policy of the run's best periodic evaluation (trained with ``--eval-every``)."""
+    (700) or its name (ckpt_000000700); the run keeps its last --keep-checkpoints.
+    'best': the policy of the run's best periodic evaluation (trained with --eval-every)."""
     policy: Literal["auto", "average", "last"] = "auto"
-    """With --run-dir: which weights of the checkpoint to play. ``auto``: the run's policy (the
-    actor's weight average where the run keeps one, ``--actor-average-from``, else the actor);
-    ``average``: the average (exit 2 without one); ``last``: the last actor itself."""
+    """With --run-dir: which weights of the checkpoint to play. 'auto': the run's policy (the
+    actor's weight average where the run keeps one, --actor-average-from, else the actor);
+    'average': the average (exit 2 without one); 'last': the last actor itself."""
     script: str | None = None
     """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D), or,
-    in combat, a search player as in ``hybridmarl battle --p0`` (``uct:script=attack-closest``
-    is the paper's UCT_c, ``abcd:script=attack-closest`` its A-B_c, ``pgs`` its "Profile";
+    in combat, a search player as in 'hybridmarl battle --p0' ('uct:script=attack-closest'
+    is the paper's UCT_c, 'abcd:script=attack-closest' its A-B_c, 'pgs' its "Profile";
     Table 1): the same start states, played turn by turn on the host."""
     env: str | None = None
     """With --script: the environment (default combat)."""
@@ -142,7 +134,7 @@ class EvalConfig:
     p_arrive: float | None = None
     """Traffic junction arrival probability (default: the run's, 0.2)."""
     time_penalty: bool | None = None
-    """Traffic junction: CommNet's ``-0.01·τ`` time penalty in the reported return (default: the
+    """Traffic junction: CommNet's -0.01·τ time penalty in the reported return (default: the
     run's setting; off for --script). The failure rate does not depend on it."""
     json: bool = False
     """Print exactly one JSON object (W, R, their 95% intervals, ...) on stdout."""
@@ -151,6 +143,8 @@ class EvalConfig:
 
 
 def run_eval(cfg: EvalConfig) -> int:
+    """Evaluate what ``cfg`` names and print the result (or one JSON object); raises
+    ``UserError`` on bad input."""
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.task import (
         TaskSpec,
@@ -160,75 +154,71 @@ def run_eval(cfg: EvalConfig) -> int:
         make_task,
     )
 
-    errors = _user_errors()
-    try:
-        if cfg.n < 1:
-            raise errors[0]("--n must be at least 1")
-        if (cfg.run_dir is None) == (cfg.script is None):
-            raise errors[0]("give exactly one of --run-dir (a trained policy) or --script")
-        if cfg.script is not None and cfg.enemy_run_dir and E.is_search_spec(cfg.script):
-            raise errors[0]("a search player (--script uct/abcd/pgs) needs a script enemy (--enemy), not --enemy-run-dir")
-        bundle = None
-        if cfg.run_dir is not None:
-            bundle = E.load_policy(cfg.run_dir, cfg.checkpoint, cfg.policy)
-            spec = bundle.spec
-            trained_from = bundle.config.get("config", {}).get("demonstrator_name", "")
+    if cfg.n < 1:
+        raise UserError("--n must be at least 1")
+    if (cfg.run_dir is None) == (cfg.script is None):
+        raise UserError("give exactly one of --run-dir (a trained policy) or --script")
+    if cfg.script is not None and cfg.enemy_run_dir and E.is_search_spec(cfg.script):
+        raise UserError("a search player (--script uct/abcd/pgs) needs a script enemy (--enemy), not --enemy-run-dir")
+    bundle = None
+    if cfg.run_dir is not None:
+        bundle = E.load_policy(cfg.run_dir, cfg.checkpoint, cfg.policy)
+        spec = bundle.spec
+        trained_from = bundle.config.get("config", {}).get("demonstrator_name", "")
+    else:
+        env = canonical_env(cfg.env or "combat")
+        spec = TaskSpec(env=env)
+        trained_from = ""
+    if cfg.scenario:
+        spec = dataclasses.replace(spec, scenario=cfg.scenario)
+    if cfg.p_arrive is not None:
+        spec = dataclasses.replace(spec, p_arrive=cfg.p_arrive)
+    if cfg.time_penalty is not None:
+        spec = dataclasses.replace(spec, time_penalty=cfg.time_penalty)
+    enemy_label = None
+    if spec.env == "combat":
+        if cfg.enemy_run_dir:
+            enemy_bundle = E.load_policy(cfg.enemy_run_dir)
+            script_fn = E.mirrored_enemy(enemy_bundle, spec)
+            from hybridmarl.training.task import Task
+
+            task = Task(spec)
+            from hybridmarl.envs.combat import Combat
+
+            task.env = Combat(scenario=spec.scenario, enemy=script_fn, max_turns=spec.max_turns)
+            enemy_label = f"policy:{cfg.enemy_run_dir}"
         else:
-            env = canonical_env(cfg.env or "combat")
-            spec = TaskSpec(env=env)
-            trained_from = ""
-        if cfg.scenario:
-            spec = dataclasses.replace(spec, scenario=cfg.scenario)
-        if cfg.p_arrive is not None:
-            spec = dataclasses.replace(spec, p_arrive=cfg.p_arrive)
-        if cfg.time_penalty is not None:
-            spec = dataclasses.replace(spec, time_penalty=cfg.time_penalty)
-        enemy_label = None
-        if spec.env == "combat":
-            if cfg.enemy_run_dir:
-                enemy_bundle = E.load_policy(cfg.enemy_run_dir)
-                script_fn = E.mirrored_enemy(enemy_bundle, spec)
-                from hybridmarl.training.task import Task
-
-                task = Task(spec)
-                from hybridmarl.envs.combat import Combat
-
-                task.env = Combat(scenario=spec.scenario, enemy=script_fn, max_turns=spec.max_turns)
-                enemy_label = f"policy:{cfg.enemy_run_dir}"
+            if cfg.enemy:
+                enemy = canonical_script("combat", cfg.enemy)
+            elif trained_from and not trained_from.startswith("dataset:"):
+                enemy = default_enemy(trained_from)
+            elif bundle is not None:
+                enemy = bundle.config.get("config", {}).get("eval_enemy_name") or spec.enemy
             else:
-                if cfg.enemy:
-                    enemy = canonical_script("combat", cfg.enemy)
-                elif trained_from and not trained_from.startswith("dataset:"):
-                    enemy = default_enemy(trained_from)
-                elif bundle is not None:
-                    enemy = bundle.config.get("config", {}).get("eval_enemy_name") or spec.enemy
-                else:
-                    enemy = "attack-weakest"
-                spec = dataclasses.replace(spec, enemy=enemy)
-                task = make_task(spec)
-                enemy_label = enemy
-        else:
+                enemy = "attack-weakest"
+            spec = dataclasses.replace(spec, enemy=enemy)
             task = make_task(spec)
-        if bundle is not None:
-            if (task.num_agents, task.num_actions, task.obs_dim) != (make_task(bundle.spec).num_agents, make_task(bundle.spec).num_actions, make_task(bundle.spec).obs_dim):
-                raise errors[0](f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes")
-            res = E.evaluate_task(task, bundle.module, bundle.variables, n=cfg.n, seed=cfg.seed)
-        elif cfg.script is not None and E.is_search_spec(cfg.script):
-            # A search player (Table 1's UCT_c, A-B_c, Profile) on the same start states as a script.
-            from hybridmarl.search import make_player
+            enemy_label = enemy
+    else:
+        task = make_task(spec)
+    if bundle is not None:
+        if (task.num_agents, task.num_actions, task.obs_dim) != (make_task(bundle.spec).num_agents, make_task(bundle.spec).num_actions, make_task(bundle.spec).obs_dim):
+            raise UserError(f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes")
+        res = E.evaluate_task(task, bundle.module, bundle.variables, n=cfg.n, seed=cfg.seed)
+    elif cfg.script is not None and E.is_search_spec(cfg.script):
+        # A search player (Table 1's UCT_c, A-B_c, Profile) on the same start states as a script.
+        from hybridmarl.search import make_player
 
-            if task.kind != "combat":
-                raise errors[0]("search players (uct, abcd, pgs) play combat only")
-            try:
-                make_player(cfg.script)
-            except ValueError as e:
-                raise errors[0](str(e).splitlines()[0]) from None
-            res = E.evaluate_player(task, cfg.script, n=cfg.n, seed=cfg.seed, progress=True)
-        else:
-            assert cfg.script is not None
-            res = E.evaluate_task(task, None, None, n=cfg.n, seed=cfg.seed, script=canonical_script(task.kind, cfg.script))
-    except errors as e:
-        return _fail(str(e))
+        if task.kind != "combat":
+            raise UserError("search players (uct, abcd, pgs) play combat only")
+        try:
+            make_player(cfg.script)
+        except ValueError as e:
+            raise UserError(str(e).splitlines()[0]) from None
+        res = E.evaluate_player(task, cfg.script, n=cfg.n, seed=cfg.seed, progress=True)
+    else:
+        assert cfg.script is not None
+        res = E.evaluate_task(task, None, None, n=cfg.n, seed=cfg.seed, script=canonical_script(task.kind, cfg.script))
     res.update(
         policy=cfg.run_dir or f"script:{cfg.script}",
         env=spec.env,
@@ -253,6 +243,11 @@ def run_eval(cfg: EvalConfig) -> int:
     return 0
 
 
+def eval_command(args: list[str]) -> int:
+    """``hybridmarl eval [options]``."""
+    return run_eval(tyro.cli(EvalConfig, args=args, prog="hybridmarl eval"))
+
+
 # -- demos -----------------------------------------------------------------------------------------------
 
 
@@ -267,7 +262,7 @@ class DemosCollectConfig:
     scenario: str = "m5v5"
     """Combat scenario."""
     demonstrator: str = "attack-closest"
-    """Demonstrator script (``NAME`` or ``NAME:EPS``)."""
+    """Demonstrator script (NAME or NAME:EPS)."""
     enemy: str | None = None
     """Combat enemy script (default: the cross-validation enemy of the demonstrator)."""
     n: int = 10_000
@@ -282,7 +277,7 @@ class DemosCollectConfig:
     """Traffic junction arrival probability."""
     time_penalty: bool = False
     """Traffic junction: record rewards and returns with CommNet's time penalty (-0.01·τ per car
-    per step; as ``train --time-penalty``). The paper's reward has none."""
+    per step; as 'hybridmarl train --time-penalty'). The paper's reward has none."""
     max_turns: int = 1000
     """Combat turn cap per episode."""
 
@@ -295,44 +290,49 @@ class DemosInfoConfig:
     """The dataset file."""
 
 
-def run_demos(args: list[str]) -> int:
-    if not args or args[0] not in ("collect", "info"):
-        return _fail("usage: hybridmarl demos {collect,info} [options]")
+def run_demos_info(cfg: DemosInfoConfig) -> int:
+    """Validate a dataset file and print its summary as JSON; raises
+    :class:`~hybridmarl.training.demos.DatasetError` (a ``UserError``) if it is invalid."""
+    from hybridmarl.training import demos as D
+
+    ds = D.load_dataset(cfg.path)
+    a = ds.arrays
+    summary = {
+        "path": cfg.path,
+        **{k: ds.meta[k] for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
+        "observations": ds.size,
+        "episodes": int(a["episode"].max()) + 1,
+        "agent_decisions": int((a["legal"].sum(-1) >= 2).sum()),
+        "mean_return": float(a["return"][a["t"] == 0].mean()) if (a["t"] == 0).any() else None,
+    }
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def run_demos_collect(cfg: DemosCollectConfig) -> int:
+    """Record the demonstrations ``cfg`` describes; raises ``UserError`` on bad input."""
     from hybridmarl.training import demos as D
     from hybridmarl.training.task import TaskSpec, canonical_env, canonical_script, default_enemy
 
-    errors = _user_errors()
-    if args[0] == "info":
-        icfg = tyro.cli(DemosInfoConfig, args=args[1:], prog="hybridmarl demos info")
-        try:
-            ds = D.load_dataset(icfg.path)
-        except errors as e:
-            return _fail(str(e))
-        a = ds.arrays
-        summary = {
-            "path": icfg.path,
-            **{k: ds.meta[k] for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
-            "observations": ds.size,
-            "episodes": int(a["episode"].max()) + 1,
-            "agent_decisions": int((a["legal"].sum(-1) >= 2).sum()),
-            "mean_return": float(a["return"][a["t"] == 0].mean()) if (a["t"] == 0).any() else None,
-        }
-        print(json.dumps(summary, indent=2))
-        return 0
-    cfg = tyro.cli(DemosCollectConfig, args=args[1:], prog="hybridmarl demos collect")
-    try:
-        env = canonical_env(cfg.env)
-        demo = canonical_script(env, cfg.demonstrator)
-        if cfg.n < 1:
-            raise errors[0]("--n must be at least 1")
-        if env == "combat":
-            enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
-            spec = TaskSpec(env=env, scenario=cfg.scenario, enemy=enemy, max_turns=cfg.max_turns)
-        else:
-            spec = TaskSpec(env=env, p_arrive=cfg.p_arrive, time_penalty=cfg.time_penalty)
-        ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma)
-        path = D.save_dataset(ds, cfg.out)
-    except errors as e:
-        return _fail(str(e))
+    env = canonical_env(cfg.env)
+    demo = canonical_script(env, cfg.demonstrator)
+    if cfg.n < 1:
+        raise UserError("--n must be at least 1")
+    if env == "combat":
+        enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
+        spec = TaskSpec(env=env, scenario=cfg.scenario, enemy=enemy, max_turns=cfg.max_turns)
+    else:
+        spec = TaskSpec(env=env, p_arrive=cfg.p_arrive, time_penalty=cfg.time_penalty)
+    ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma)
+    path = D.save_dataset(ds, cfg.out)
     print(f"recorded {ds.size} observations ({int(ds.arrays['episode'].max()) + 1} episodes) of {demo} on {spec.label()} -> {path}")
     return 0
+
+
+def demos_command(args: list[str]) -> int:
+    """``hybridmarl demos {collect,info} [options]``."""
+    if not args or args[0] not in ("collect", "info"):
+        raise UserError("usage: hybridmarl demos {collect,info} [options]")
+    if args[0] == "info":
+        return run_demos_info(tyro.cli(DemosInfoConfig, args=args[1:], prog="hybridmarl demos info"))
+    return run_demos_collect(tyro.cli(DemosCollectConfig, args=args[1:], prog="hybridmarl demos collect"))

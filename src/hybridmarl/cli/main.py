@@ -1,33 +1,90 @@
-"""The ``hybridmarl`` command.
+"""The ``hybridmarl`` command: one table of subcommands, and the one place that turns errors into
+exit codes.
 
-Subcommands:
+:data:`COMMANDS` maps each subcommand to its one-line help and its handler; the top-level help
+is generated from it. A handler takes the remaining arguments, parses them itself (tyro), and
+returns an exit code (``None`` means 0). Bad input raises :class:`~hybridmarl.errors.UserError`
+(``hybridmarl: error: <message>`` on stderr, exit code 2; no output file is left); a training
+run whose losses became NaN/inf raises :class:`~hybridmarl.errors.TrainingDiverged`
+(``hybridmarl: training stopped: <message>``, exit code 3). A missing optional package becomes a
+:class:`~hybridmarl.errors.UserError` naming the extra to install
+(:func:`hybridmarl.cli.extras.optional_extras`).
 
-- ``hybridmarl battle``: a scripted battle series (start states from a file or a scenario), with a
-  win-rate table and optional JSON results.
-- ``hybridmarl bench engine``: engine throughput (games/s, unit-actions/s) as JSON.
-- ``hybridmarl trace``: a turn-by-turn trace of one battle, in SparCraft's reference trace format.
-- ``hybridmarl replay``: a GIF of a combat battle or a Traffic Junction episode.
-- ``hybridmarl demos`` / ``train`` / ``eval``: demonstrations, learners, evaluation (``hybridmarl.algos``).
-
-Bad input (an unknown unit type or script, a unit off the map, an empty side, malformed JSON, a
-missing file) gets one line on stderr naming the problem and exit code 2; no output file is left.
+Handlers are imported only when their command runs, so ``hybridmarl --help`` does not load JAX.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated
 
-import tyro
+from hybridmarl.errors import EXIT_BAD_INPUT, EXIT_DIVERGED, TrainingDiverged, UserError
 
-EXIT_BAD_INPUT = 2
+#: A command handler: the arguments after the command name -> exit code (None: 0).
+Handler = Callable[[list[str]], "int | None"]
+
+
+@dataclass(frozen=True)
+class Command:
+    """One subcommand: its one-line help and where its handler lives (``module:function``,
+    imported when the command runs)."""
+
+    help: str
+    target: str
+
+    def handler(self) -> Handler:
+        module, _, name = self.target.partition(":")
+        return getattr(importlib.import_module(module), name)
+
+
+#: Every subcommand of ``hybridmarl``, in the order the help lists them.
+COMMANDS: dict[str, Command] = {
+    "quickstart": Command(
+        "train the hybrid method on m5v5, compare with its demonstrator, curve + replay",
+        "hybridmarl.cli.quickstart:quickstart_command",
+    ),
+    "battle": Command(
+        "play a scripted battle series and print a win-rate table",
+        "hybridmarl.cli.engine:battle_command",
+    ),
+    "trace": Command(
+        "print a turn-by-turn trace of one battle",
+        "hybridmarl.cli.engine:trace_command",
+    ),
+    "replay": Command(
+        "record a battle or a Traffic Junction episode as a GIF",
+        "hybridmarl.cli.replay:replay_command",
+    ),
+    "train": Command(
+        "train a learner (--algo hybrid|bc|dqfd|ogtl, --preset quick|paper|...)",
+        "hybridmarl.cli.learn:train_command",
+    ),
+    "eval": Command(
+        "evaluate a trained policy or a script (W, R with 95% CIs)",
+        "hybridmarl.cli.learn:eval_command",
+    ),
+    "demos": Command(
+        "record / inspect demonstration datasets (collect, info)",
+        "hybridmarl.cli.learn:demos_command",
+    ),
+}
+
+
+def usage() -> str:
+    """The top-level help, generated from :data:`COMMANDS`."""
+    width = max(len(name) for name in COMMANDS) + 2
+    lines = [f"usage: hybridmarl {{{','.join(COMMANDS)}}} ...", ""]
+    lines += [f"  {name:<{width}}{cmd.help}" for name, cmd in COMMANDS.items()]
+    lines += ["", "Run 'hybridmarl COMMAND --help' for the options of a command."]
+    return "\n".join(lines)
 
 
 def _configure_host_devices() -> None:
-    """Expose both CPU cores to XLA as two devices before JAX is imported, so batched games can be
-    split across them (one jitted program uses about one core). Respects a user's XLA_FLAGS."""
+    """Expose the CPU cores to XLA as host devices before JAX is imported, so batched games can
+    be split across them (one jitted program uses about one core). Respects a user's XLA_FLAGS."""
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags and "jax" not in sys.modules:
         n = os.cpu_count() or 1
@@ -35,313 +92,33 @@ def _configure_host_devices() -> None:
             os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={min(n, 8)}").strip()
 
 
-@dataclass(frozen=True)
-class BattleConfig:
-    """Play a series of scripted battles and print a win-rate table."""
-
-    p0: str = "attack-closest"
-    """Player 0 (ours, the left army): a script (attack-closest, attack-weakest, attack-dps, nokdps,
-    kiter, kiter-dps, kiter-nokdps, cluster, random, attack-weakest-global) or a search player
-    spec: uct, abcd or pgs with options, e.g. 'uct:time_ms=40,c=1.6' or 'uct:script=attack-closest'
-    (the paper's UCT_c); see hybridmarl.search.base for every option."""
-    p1: str = "attack-weakest"
-    """Player 1 (the enemy, the right army): a script or a search player spec."""
-    scenario: str | None = "m5v5"
-    """Named scenario: m<A>v<B> (Marines, armies in contact) or m<A>v<B>-apart (disks 400 px
-    apart, sparcraft.md §6.2). Ignored when --states or --scenario-file is given."""
-    scenario_file: str | None = None
-    """JSON scenario file for other unit types, mixes and geometries (see README)."""
-    states: str | None = None
-    """JSON file of explicit start states: {"states": [{"units": [{"type", "player", "x", "y"}]}]}."""
-    n: int = 1000
-    """Number of start states to generate (with --scenario / --scenario-file)."""
-    seed: int = 0
-    """Seed for start-state generation and the random script."""
-    out: str | None = None
-    """Write per-battle results as JSON here (atomically; nothing is written on bad input)."""
-    batch_size: int = 1024
-    """Games played at once in one compiled program."""
-    overkill: Annotated[str, tyro.conf.arg(help_behavior_hint="pass | classic")] = "pass"
-    """An attack on a target killed earlier in the same turn: 'pass' (SparCraft DC-HEAD: the
-    attacker PASSes) or 'classic' (DC-CLASSIC: cooldown spent, no damage)."""
-    stalemate_limit: int = 50
-    """End the game after more than this many turns without an HP change (DC-HEAD: 50)."""
-    max_turns: int = 20000
-    """Turn cap (SparCraft SearchExperiment: 20,000 decision turns)."""
-    map_file: str | None = None
-    """Optional SparCraft ASCII walkability map (width, height in 8-px walk tiles, rows of 0/1)."""
-    progress: bool = True
-    """Show a progress bar."""
-    swap: bool = False
-    """Also play every state with the scripts swapped and report both directions."""
-
-
-@dataclass(frozen=True)
-class TraceConfig:
-    """Print a turn-by-turn trace of one battle (SparCraft's reference trace format)."""
-
-    p0: str = "attack-closest"
-    """Script of player 0."""
-    p1: str = "attack-weakest"
-    """Script of player 1."""
-    states: str | None = None
-    """JSON states file; the state at --index is traced."""
-    scenario: str = "m5v5"
-    """Named scenario used when --states is not given."""
-    index: int = 0
-    """Which state to trace."""
-    seed: int = 0
-    """Seed for state generation."""
-
-
-@dataclass(frozen=True)
-class BenchEngineConfig:
-    """Benchmark full scripted games per second; prints JSON."""
-
-    scenarios: tuple[str, ...] = ("m5v5-apart", "m30v30-apart")
-    """Scenarios to time."""
-    batch_sizes: tuple[int, ...] = (1, 64, 1024, 4096)
-    """Batch sizes to time."""
-    p0: str = "attack-closest"
-    """Script of player 0."""
-    p1: str = "attack-weakest"
-    """Script of player 1."""
-    repeats: int = 5
-    """Timed runs per setting (min and median are reported)."""
-    min_games: int = 256
-    """Games per timed run at least (small batches run several batches)."""
-    out: str | None = None
-    """Also write the JSON here."""
-
-
-def _fail(msg: str) -> int:
-    print(f"hybridmarl: error: {msg}", file=sys.stderr)
-    return EXIT_BAD_INPUT
-
-
-def _load_map(path: str | None):
-    if path is None:
-        return None
-    from hybridmarl.engine.scenarios import InputError
-    from hybridmarl.engine.state import parse_ascii_map
-
-    try:
-        with open(path) as f:
-            return parse_ascii_map(f.read())
-    except FileNotFoundError:
-        raise InputError(f"map file {path!r} not found") from None
-    except ValueError as e:
-        raise InputError(f"{path}: {e}") from None
-
-
-def _is_script(spec: str) -> bool:
-    from hybridmarl.engine.scripts import canonical_name
-
-    try:
-        canonical_name(spec)
-    except KeyError:
-        return False
-    return True
-
-
-def _check_player_spec(spec: str) -> None:
-    """Validate a search-player spec such as ``uct:time_ms=40`` (one-line InputError)."""
-    from hybridmarl.engine.scenarios import InputError
-    from hybridmarl.engine.scripts import SCRIPTS
-
-    try:
-        from hybridmarl.search import make_player
-
-        make_player(spec)
-    except ValueError as e:
-        msg = str(e).splitlines()[0] if str(e) else f"bad player {spec!r}"
-        if spec.split(":")[0].strip().lower() not in ("uct", "uct-cd", "uctcd", "abcd", "ab", "alphabeta", "alpha-beta", "pgs", "portfolio"):
-            msg = f"unknown script {spec!r} (scripts: {', '.join(SCRIPTS)}; search players: uct, abcd, pgs)"
-        raise InputError(msg) from None
-
-
-def run_battle(cfg: BattleConfig) -> int:
-    from hybridmarl.engine.battle import run_battles
-    from hybridmarl.engine.scenarios import InputError, load_states_file, resolve_scenario
-    from hybridmarl.engine.state import make_rules
-    from hybridmarl.io import write_json_atomic
-
-    try:
-        search = [not _is_script(s) for s in (cfg.p0, cfg.p1)]
-        for s, is_search in zip((cfg.p0, cfg.p1), search, strict=True):
-            if is_search:
-                _check_player_spec(s)
-        if cfg.n < 1:
-            raise InputError("--n must be at least 1")
-        if cfg.batch_size < 1:
-            raise InputError("--batch-size must be at least 1")
-        walkable = _load_map(cfg.map_file)
-        try:
-            rules = make_rules(
-                walkable, stalemate_limit=cfg.stalemate_limit, overkill=cfg.overkill, max_turns=cfg.max_turns
-            )
-        except ValueError as e:
-            raise InputError(str(e)) from None
-        if cfg.states:
-            states = load_states_file(cfg.states, walkable=walkable)
-            label = cfg.states
-        else:
-            sc = resolve_scenario(cfg.scenario, cfg.scenario_file)
-            states = sc.generate(cfg.n, cfg.seed)
-            label = f"{sc.name} (n={cfg.n}, seed={cfg.seed})"
-            if walkable is not None:
-                from hybridmarl.engine.scenarios import parse_states_document, states_to_document
-
-                states = parse_states_document(states_to_document(states), walkable=walkable)
-    except InputError as e:
-        return _fail(str(e))
-
-    if any(search):
-        # Search players decide on the host, turn by turn (hybridmarl.search.runner).
-        from hybridmarl.search import run_player_battles
-
-        def play(a: str, b: str):
-            return run_player_battles(states, a, b, seed=cfg.seed, rules=rules, progress=cfg.progress)
-    else:
-
-        def play(a: str, b: str):
-            return run_battles(states, a, b, seed=cfg.seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)
-
-    results = [play(cfg.p0, cfg.p1)]
-    if cfg.swap:
-        results.append(play(cfg.p1, cfg.p0))
-    _print_table(label, results)
-    if cfg.out:
-        doc = results[0].to_document()
-        if cfg.swap:
-            doc["swapped"] = results[1].to_document()
-        write_json_atomic(cfg.out, doc, indent=None)
-        print(f"results written to {cfg.out}")
-    return 0
-
-
-def _print_table(label: str, results) -> None:
-    from rich.console import Console
-    from rich.table import Table
-
-    table = Table(title=f"Battles: {label}")
-    for col in ("P0 (left)", "P1 (right)", "battles", "P0 wins", "P1 wins", "draws", "mean turns", "mean frames"):
-        table.add_column(col, justify="right")
-    for r in results:
-        s = r.summary()
-        table.add_row(
-            s["p0"],
-            s["p1"],
-            str(s["battles"]),
-            f"{s['p0_win_rate']:.1%}",
-            f"{s['p1_win_rate']:.1%}",
-            f"{s['draw_rate']:.1%}",
-            f"{s['mean_turns']:.1f}",
-            f"{s['mean_final_time']:.1f}",
-        )
-    console = Console()
-    # Keep the table on one line per row when stdout is not a terminal (logs, pipes, CI).
-    Console(width=max(console.width, 120)).print(table)
-
-
-def run_trace(cfg: TraceConfig) -> int:
-    from hybridmarl.engine.scenarios import InputError, load_states_file, named_scenario
-    from hybridmarl.engine.scripts import canonical_name
-    from hybridmarl.engine.state import build_state, make_rules
-    from hybridmarl.engine.trace import format_trace, record_trace
-
-    try:
-        for s in (cfg.p0, cfg.p1):
-            try:
-                canonical_name(s)
-            except KeyError as e:
-                raise InputError(str(e.args[0])) from None
-        states = load_states_file(cfg.states) if cfg.states else named_scenario(cfg.scenario).generate(cfg.index + 1, cfg.seed)
-        if not 0 <= cfg.index < len(states):
-            raise InputError(f"--index {cfg.index} out of range (0..{len(states) - 1})")
-    except InputError as e:
-        return _fail(str(e))
-    units = states[cfg.index]
-    tr = record_trace(units, build_state(units), make_rules(), cfg.p0, cfg.p1, seed=cfg.seed)
-    sys.stdout.write(format_trace(tr))
-    return 0
-
-
-def run_bench_engine(cfg: BenchEngineConfig) -> int:
-    import json
-
-    from hybridmarl.engine.benchmark import bench_engine
-
-    doc = bench_engine(
-        scenarios=cfg.scenarios,
-        batch_sizes=cfg.batch_sizes,
-        p0=cfg.p0,
-        p1=cfg.p1,
-        repeats=cfg.repeats,
-        min_games=cfg.min_games,
-    )
-    text = json.dumps(doc, indent=2)
-    print(text)
-    if cfg.out:
-        from hybridmarl.io import write_json_atomic
-
-        write_json_atomic(cfg.out, doc)
-    return 0
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split("\n")).strip()
 
 
 def main(argv: list[str] | None = None) -> int:
-    _configure_host_devices()
-    args = sys.argv[1:] if argv is None else argv
-    commands = {
-        "battle": (BattleConfig, run_battle),
-        "trace": (TraceConfig, run_trace),
-        "bench": None,
-        "replay": None,
-        # The learners (hybridmarl.cli.learn): raw args, parsed there.
-        "train": None,
-        "eval": None,
-        "demos": None,
-        "quickstart": None,
-    }
+    """Run ``hybridmarl`` with ``argv`` (default ``sys.argv[1:]``) and return the exit code."""
+    args = sys.argv[1:] if argv is None else list(argv)
     if not args or args[0] in ("-h", "--help"):
-        print(
-            "usage: hybridmarl {quickstart,battle,trace,bench,replay,train,eval,demos} ...\n\n"
-            "  quickstart    train the method on m5v5, compare with its demonstrator, curve + replay\n"
-            "  battle        play a scripted battle series and print a win-rate table\n"
-            "  trace         print a turn-by-turn trace of one battle\n"
-            "  bench engine  engine throughput benchmark (JSON)\n"
-            "  replay        record a battle or a Traffic Junction episode as a GIF\n"
-            "  train         train a learner (--algo hybrid|bc|dqfd|ogtl, --preset paper|quick|...)\n"
-            "  eval          evaluate a trained policy or a script (W, R with 95% CIs)\n"
-            "  demos         record / inspect demonstration datasets (collect, info)\n\n"
-            "Run 'hybridmarl COMMAND --help' for the options of a command."
-        )
+        print(usage())
         return 0 if args else EXIT_BAD_INPUT
-    cmd, rest = args[0], args[1:]
-    if cmd == "bench":
-        if not rest or rest[0] != "engine":
-            return _fail("usage: hybridmarl bench engine [options]")
-        cfg = tyro.cli(BenchEngineConfig, args=rest[1:], prog="hybridmarl bench engine")
-        return run_bench_engine(cfg)
-    if cmd == "replay":
-        from hybridmarl.cli.replay import ReplayConfig, run_replay
+    name, rest = args[0], args[1:]
+    _configure_host_devices()
+    from hybridmarl.cli.extras import optional_extras
 
-        return run_replay(tyro.cli(ReplayConfig, args=rest, prog="hybridmarl replay"))
-    if cmd == "quickstart":
-        from hybridmarl.cli.quickstart import main as quickstart_main
-
-        return quickstart_main(rest)
-    if cmd in ("train", "eval", "demos"):
-        from hybridmarl.cli import learn as algos_cli
-
-        if cmd == "eval":
-            return algos_cli.run_eval(tyro.cli(algos_cli.EvalConfig, args=rest, prog="hybridmarl eval"))
-        return algos_cli.run_train(rest) if cmd == "train" else algos_cli.run_demos(rest)
-    if cmd not in commands or commands[cmd] is None:
-        return _fail(f"unknown command {cmd!r} (commands: {', '.join(commands)})")
-    cls, fn = commands[cmd]  # type: ignore[misc]
-    cfg = tyro.cli(cls, args=rest, prog=f"hybridmarl {cmd}")
-    return fn(cfg)
+    try:
+        command = COMMANDS.get(name)
+        if command is None:
+            raise UserError(f"unknown command {name!r} (commands: {', '.join(COMMANDS)})")
+        with optional_extras():
+            rc = command.handler()(rest)
+    except UserError as e:
+        print(f"hybridmarl: error: {_one_line(e)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except TrainingDiverged as e:
+        print(f"hybridmarl: training stopped: {_one_line(e)}", file=sys.stderr)
+        return EXIT_DIVERGED
+    return 0 if rc is None else int(rc)
 
 
 if __name__ == "__main__":

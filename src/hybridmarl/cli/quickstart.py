@@ -1,9 +1,10 @@
-"""``hybridmarl quickstart``: the README's main job, the m5v5 row of the paper's Table 1.
+"""``hybridmarl quickstart``: the m5v5 row of the paper's Table 1 in one command.
 
 One command, resumable at any point:
 
 1. train the hybrid method (``--preset quick`` by default) on a combat scenario from a scripted
-   demonstrator (``hybridmarl train``; an interrupted run is resumed, a finished one reused);
+   demonstrator, in this process (the learner's ``train(config)``; an interrupted run is
+   resumed, a finished one reused if it was made with the same settings);
 2. evaluate the demonstrator D and the trained policy with the paper's protocol (Section 5.1:
    ``n`` battles, legal argmax, W and R with 95% intervals) against the paper's cross-validation
    enemy (a model learned from c fights w and vice versa), on the same start states;
@@ -11,18 +12,21 @@ One command, resumable at any point:
    write it as ``comparison.json`` and ``comparison.md``, and write a replay GIF of one battle of
    the trained policy; ``curve.png`` (Fig. 3 style) comes from the training run.
 
-Everything lands in ``--run-dir`` (default ``runs/quickstart-<scenario>-<demonstrator>``).
+Everything lands in ``--run-dir`` (default :func:`default_run_dir`:
+``runs/quickstart-<scenario>-<demonstrator>-s<seed>``).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+from hybridmarl.errors import UserError
 
 #: The paper's Table 1 (W, R) of the demonstrator D and of "Ours", by (scenario, demonstrator).
 PAPER_TABLE1: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
@@ -35,6 +39,14 @@ PAPER_TABLE1: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
     ("m18v20", "attack-weakest"): {"D": (0.03, -0.36), "Ours": (0.71, 0.16)},
     ("m24v30", "attack-weakest"): {"D": (0.00, -0.49), "Ours": (0.58, 0.03)},
 }
+
+#: The learner the quickstart trains (``hybridmarl.algos``).
+ALGO = "hybrid"
+#: Its preset unless --preset says otherwise.
+DEFAULT_PRESET = "quick"
+#: Config fields that do not change what a run learns: a finished run that differs from the
+#: asked-for settings only in these is reused.
+_NOT_COMPARED = frozenset({"run_dir", "name", "resume", "progress", "tensorboard", "keep_checkpoints"})
 
 
 @dataclass(frozen=True)
@@ -49,77 +61,132 @@ class QuickstartConfig:
     enemy: str | None = None
     """Enemy script, for training and evaluation. Default: the paper's cross-validation (a model
     learned from c fights w, and vice versa)."""
-    preset: str = "quick"
-    """Training preset of ``hybridmarl train --algo hybrid``: ``quick`` (the recipe of our best
-    CPU runs, the paper's method with extensions: W 0.88-0.93 of 100 battles over seven seeds
-    against D's 0.44 on the same states, 10-13 CPU-minutes since session 9; README, "Results")
-    or ``quick-paper`` (the paper's own method at a small budget, about 6 minutes; it does not
-    beat D at this budget)."""
+    preset: str = DEFAULT_PRESET
+    """Training preset of 'hybridmarl train --algo hybrid': 'quick' (the recipe of the best CPU
+    runs, the paper's method with extensions: W 0.88-0.93 of 100 battles over seven seeds
+    against D's 0.44 on the same states, 10-13 CPU-minutes; README, "Results") or 'quick-paper'
+    (the paper's own method at a small budget, about 6 minutes; it does not beat D at this
+    budget)."""
     seed: int = 0
     """Seed of training and of the evaluation's start states."""
     n: int = 100
     """Evaluation battles per policy (Section 5.1: 100)."""
+    total_episodes: int | None = None
+    """Training episodes (default: the preset's)."""
     run_dir: str | None = None
-    """Where everything is written (default ``runs/quickstart-<scenario>-<demonstrator>``, plus
-    ``-<preset>`` for a preset other than ``quick``)."""
+    """Where everything is written (default runs/quickstart-<scenario>-<demonstrator>-s<seed>,
+    with -<preset> before -s<seed> for a preset other than quick). A finished run there is
+    reused if it was made with the same settings, and refused otherwise."""
     replay_seed: int = 0
     """Which battle the replay GIF shows (its start-state seed)."""
-    train_args: tuple[str, ...] = ()
-    """Extra ``hybridmarl train`` options passed through, e.g. ``--train-args --total-episodes 500``."""
     progress: bool = True
     """Show the training progress bar."""
 
 
+def default_run_dir(scenario: str, demonstrator: str, seed: int, preset: str = DEFAULT_PRESET) -> Path:
+    """The quickstart's run directory for these settings: every seed and preset has its own, so
+    a run of one is never taken for a run of another."""
+    suffix = "" if preset == DEFAULT_PRESET else f"-{preset}"
+    return Path("runs") / f"quickstart-{scenario}-{demonstrator}{suffix}-s{seed}"
+
+
+def _flatten(doc: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts as one level of ``a.b`` keys; lists and tuples compare alike."""
+    if isinstance(doc, dict):
+        out: dict[str, Any] = {}
+        for k, v in doc.items():
+            out.update(_flatten(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: list(doc) if isinstance(doc, tuple) else doc}
+
+
+def settings_mismatch(saved: dict[str, Any], wanted: dict[str, Any]) -> tuple[str, Any, Any] | None:
+    """The first field whose value differs between a run's saved config and the wanted config,
+    as ``(field, saved value, wanted value)``; fields in only one of them, and fields that do not
+    change what a run learns, are not compared."""
+    old, new = _flatten(saved), _flatten(wanted)
+    for key, value in new.items():
+        if key.split(".")[-1] in _NOT_COMPARED or key not in old:
+            continue
+        if old[key] != value:
+            return key, old[key], value
+    return None
+
+
+def check_run_dir(run_dir: Path, config: Any) -> None:
+    """Refuse (:class:`UserError`) a run directory whose run was made by another learner or with
+    other settings than ``config``."""
+    from hybridmarl.training.config import config_to_dict
+
+    path = run_dir / "config.json"
+    if not path.is_file():
+        return
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise UserError(f"{path}: unreadable ({e})") from None
+    if doc.get("algo") != ALGO:
+        raise UserError(f"{run_dir} holds a {doc.get('algo')!r} run, not a {ALGO!r} run: choose another --run-dir")
+    diff = settings_mismatch(doc.get("config", {}), config_to_dict(config))
+    if diff is not None:
+        field, old, new = diff
+        raise UserError(
+            f"{run_dir} holds a run made with other settings ({field} = {old!r}, asked for {new!r}): "
+            "delete it or choose another --run-dir"
+        )
+
+
+def training_config(cfg: QuickstartConfig, demonstrator: str, enemy: str, run_dir: Path, resume: bool) -> Any:
+    """The hybrid learner's config for ``cfg``: its preset, then the quickstart's settings."""
+    from hybridmarl.algos import algo_module
+
+    mod = algo_module(ALGO)
+    if cfg.preset not in mod.PRESETS:
+        raise UserError(f"unknown preset {cfg.preset!r} (known: {', '.join(mod.PRESETS)})")
+    base = mod.PRESETS[cfg.preset]("combat")
+    changes: dict[str, Any] = {
+        "scenario": cfg.scenario, "demonstrator": demonstrator, "enemy": enemy, "seed": cfg.seed,
+        "run_dir": str(run_dir), "resume": resume, "progress": cfg.progress,
+    }
+    if importlib.util.find_spec("tensorboardX") is None:
+        changes["tensorboard"] = False  # event files need the "tensorboard" extra
+    if cfg.total_episodes is not None:
+        if cfg.total_episodes < 1:
+            raise UserError("--total-episodes must be at least 1")
+        changes["total_episodes"] = cfg.total_episodes
+    return base.replace(**changes)
+
+
 def run_quickstart(cfg: QuickstartConfig) -> int:
-    from hybridmarl.cli import learn as algos_cli
+    """Train (or resume, or reuse), evaluate, compare and replay as the module describes; return
+    0 (or a learner's non-zero exit code). Raises :class:`UserError` on bad input."""
+    from hybridmarl.algos import algo_module
+    from hybridmarl.cli.learn import train_exit_code
     from hybridmarl.io import write_json_atomic, write_text_atomic
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
-    from hybridmarl.training.task import (
-        TaskError,
-        TaskSpec,
-        canonical_script,
-        default_enemy,
-        make_task,
-    )
+    from hybridmarl.training.task import TaskSpec, canonical_script, default_enemy, make_task
 
-    errors = algos_cli._user_errors()
-    try:
-        demo = canonical_script("combat", cfg.demonstrator)
-        enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
-        if cfg.n < 1:
-            raise TaskError("--n must be at least 1")
-        make_task(TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy))  # validates the scenario
-    except errors as e:
-        return algos_cli._fail(str(e))
-    # Each preset gets its own default directory: a finished run is reused, and a run of
-    # another preset must not be mistaken for the one asked for.
-    suffix = "" if cfg.preset == "quick" else f"-{cfg.preset}"
-    run_dir = Path(cfg.run_dir or f"runs/quickstart-{cfg.scenario}-{demo}{suffix}")
+    demo = canonical_script("combat", cfg.demonstrator)
+    enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
+    if cfg.n < 1:
+        raise UserError("--n must be at least 1")
+    make_task(TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy))  # validates the scenario
+    run_dir = Path(cfg.run_dir) if cfg.run_dir else default_run_dir(cfg.scenario, demo, cfg.seed, cfg.preset)
+    train_cfg = training_config(cfg, demo, enemy, run_dir, resume=latest_checkpoint(run_dir) is not None)
+    check_run_dir(run_dir, train_cfg)
     t0 = time.time()
 
     # ---- 1. train (or resume, or reuse a finished run) -------------------------------------------------
-    finished = (run_dir / "eval.json").is_file()
-    if finished:
+    if (run_dir / "eval.json").is_file():
         print(f"{run_dir} holds a finished run: reusing it (delete the directory to retrain)")
     else:
-        argv = [
-            "--algo", "hybrid", "--preset", cfg.preset, "--scenario", cfg.scenario, "--demonstrator", demo,
-            "--enemy", enemy, "--seed", str(cfg.seed), "--run-dir", str(run_dir), *cfg.train_args,
-        ]
-        if not cfg.progress:
-            argv.append("--no-progress")
-        if latest_checkpoint(run_dir) is not None:
-            argv.append("--resume")
-        rc = algos_cli.run_train(argv)
+        rc = train_exit_code(algo_module(ALGO).train(train_cfg))
         if rc != 0:
             return rc
     train_s = time.time() - t0
-    try:
-        bundle = E.load_policy(run_dir)
-        _, meta = load_checkpoint(latest_checkpoint(run_dir))  # type: ignore[arg-type]
-    except errors as e:
-        return algos_cli._fail(str(e))
+    bundle = E.load_policy(run_dir)
+    _, meta = load_checkpoint(latest_checkpoint(run_dir))  # type: ignore[arg-type]
 
     # ---- 2. evaluate D and the trained policy on the same start states -------------------------------
     task = make_task(dataclasses.replace(bundle.spec, enemy=enemy))
@@ -163,19 +230,25 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
 
     from hybridmarl.cli.replay import ReplayConfig, run_replay
 
-    rc = run_replay(ReplayConfig(run_dir=str(run_dir), enemy=enemy, seed=cfg.replay_seed, out=str(run_dir / "replay.gif")))
-    if rc != 0:
-        return rc
-    print(f"written: {run_dir / 'comparison.json'}, {run_dir / 'comparison.md'}, {run_dir / 'curve.png'}, {run_dir / 'replay.gif'}")
-    print(f"TensorBoard: tensorboard --logdir {run_dir / 'tb'}   ({time.time() - t0:.0f}s in all, training {train_s:.0f}s)")
+    written = [run_dir / "comparison.json", run_dir / "comparison.md"]
+    if (run_dir / "curve.png").is_file():
+        written.append(run_dir / "curve.png")
+    if importlib.util.find_spec("PIL") is not None and importlib.util.find_spec("imageio") is not None:
+        run_replay(ReplayConfig(run_dir=str(run_dir), enemy=enemy, seed=cfg.replay_seed, out=str(run_dir / "replay.gif")))
+        written.append(run_dir / "replay.gif")
+    else:
+        print("no replay.gif: it needs the 'video' extra (pip install 'hybridmarl[video]')")
+    print(f"written: {', '.join(str(p) for p in written)}")
+    timing = f"{time.time() - t0:.0f}s in all, training {train_s:.0f}s"
+    if importlib.util.find_spec("tensorboard") is not None and (run_dir / "tb").is_dir():
+        print(f"TensorBoard: tensorboard --logdir {run_dir / 'tb'}   ({timing})")
+    else:
+        print(f"({timing})")
     return 0
 
 
-def main(args: list[str]) -> int:
+def quickstart_command(args: list[str]) -> int:
+    """``hybridmarl quickstart [options]``."""
     import tyro
 
     return run_quickstart(tyro.cli(QuickstartConfig, args=args, prog="hybridmarl quickstart"))
-
-
-if __name__ == "__main__":
-    sys.exit(main(sys.argv[1:]))

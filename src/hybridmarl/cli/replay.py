@@ -20,7 +20,6 @@ The camera is fixed for the whole episode (a window around every unit position o
 from __future__ import annotations
 
 import json
-import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +27,8 @@ from typing import Any
 
 import jax
 import numpy as np
+
+from hybridmarl.errors import UserError
 
 __all__ = [
     "TJ_DEMONSTRATORS",
@@ -44,25 +45,25 @@ _FINAL_HOLD_S = 1.0  # the last frame is repeated for about this long, so the en
 
 @dataclass(frozen=True)
 class ReplayConfig:
-    """What to replay and where to write it (``hybridmarl replay``)."""
+    """What to replay and where to write it (hybridmarl replay)."""
 
     env: str = "combat"
-    """Environment: ``combat`` (SparCraft battle, paper Section 5.1) or ``traffic_junction``
+    """Environment: combat (SparCraft battle, paper Section 5.1) or traffic_junction
     (Section 5.3)."""
     scenario: str = "m5v5"
-    """Combat scenario: a name (``m5v5``, ``m30v30``, ``m18v20``, ``m24v30``, ``m<A>v<B>-apart``)
+    """Combat scenario: a name (m5v5, m30v30, m18v20, m24v30, m<A>v<B>-apart)
     or a scenario JSON file. Ignored for traffic_junction."""
     ours: str | None = None
-    """Our side's policy. Combat: an engine script name (default ``attack-closest``, the paper's
-    demonstrator c). Traffic Junction: a demonstrator, ``always-gas`` or
-    ``yield-before-junction`` (default)."""
+    """Our side's policy. Combat: an engine script name (default attack-closest, the paper's
+    demonstrator c). Traffic Junction: a demonstrator, always-gas or
+    yield-before-junction (default)."""
     enemy: str = "attack-weakest"
-    """Combat: the scripted enemy (default ``attack-weakest``, the paper's heuristic w).
+    """Combat: the scripted enemy (default attack-weakest, the paper's heuristic w).
     Ignored for traffic_junction."""
     seed: int = 0
     """Seed of the episode (start state, random scripts, car arrivals)."""
     out: str = "out/replay.gif"
-    """Output path: ``.gif`` (or ``.mp4`` if an imageio ffmpeg backend is installed)."""
+    """Output path: .gif (or .mp4 if an imageio ffmpeg backend is installed)."""
     fps: int = 8
     """Frames per second of the video (one frame per env step)."""
     max_steps: int = 500
@@ -73,11 +74,11 @@ class ReplayConfig:
     evaluation setting). Ignored for combat."""
     time_penalty: bool = False
     """Traffic junction: CommNet's -0.01·τ per car per step in the reported return (a run's own
-    setting with ``--run-dir``)."""
+    setting with --run-dir)."""
     run_dir: str | None = None
-    """Play our side with the trained actor of this run directory (``hybridmarl train``; its
-    newest checkpoint, legal argmax as in the paper's test protocol) instead of ``ours``. The
-    environment and combat scenario are the run's; ``enemy`` still picks the enemy script."""
+    """Play our side with the trained actor of this run directory ('hybridmarl train'; its
+    newest checkpoint, legal argmax as in the paper's test protocol) instead of --ours. The
+    environment and combat scenario are the run's; --enemy still picks the enemy script."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -193,7 +194,7 @@ def _tj_demonstrator(name: str) -> Callable[[Any, jax.Array], jax.Array]:
         "yield": yield_before_junction,
     }
     if key not in table:
-        raise ValueError(
+        raise UserError(
             f"unknown Traffic Junction demonstrator {name!r} (known: {', '.join(TJ_DEMONSTRATORS)})"
         )
     return table[key]
@@ -260,7 +261,7 @@ def record_tj_episode(
 
 
 def _validate(cfg: ReplayConfig) -> str:
-    """Canonical env name; raises ValueError with a one-line message on bad input."""
+    """Canonical env name; raises UserError with a one-line message on bad input."""
     from hybridmarl.engine.scripts import canonical_name
 
     env = str(cfg.env).strip().lower().replace("-", "_")
@@ -270,27 +271,27 @@ def _validate(cfg: ReplayConfig) -> str:
         "tj": "traffic_junction",
     }.get(env, env)
     if env not in ("combat", "traffic_junction"):
-        raise ValueError(f"unknown env {cfg.env!r} (known: combat, traffic_junction)")
+        raise UserError(f"unknown env {cfg.env!r} (known: combat, traffic_junction)")
     suffix = Path(cfg.out).suffix.lower()
     if suffix not in (".gif", ".mp4"):
-        raise ValueError(f"output {cfg.out!r} must end in .gif (or .mp4)")
+        raise UserError(f"output {cfg.out!r} must end in .gif (or .mp4)")
     if isinstance(cfg.fps, bool) or not isinstance(cfg.fps, int) or cfg.fps <= 0:
-        raise ValueError(f"fps must be a positive integer, got {cfg.fps!r}")
+        raise UserError(f"fps must be a positive integer, got {cfg.fps!r}")
     if isinstance(cfg.max_steps, bool) or not isinstance(cfg.max_steps, int) or cfg.max_steps < 1:
-        raise ValueError(f"max_steps must be a positive integer, got {cfg.max_steps!r}")
+        raise UserError(f"max_steps must be a positive integer, got {cfg.max_steps!r}")
     if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int) or cfg.seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {cfg.seed!r}")
+        raise UserError(f"seed must be a non-negative integer, got {cfg.seed!r}")
     if env == "combat":
         for who, name in (("ours", cfg.ours or "attack-closest"), ("enemy", cfg.enemy)):
             try:
                 canonical_name(name)
             except KeyError as e:
-                raise ValueError(f"{who}: {e.args[0]}") from None
-        _resolve_scenario(cfg.scenario)  # InputError (a ValueError) with one line if bad
+                raise UserError(f"{who}: {e.args[0]}") from None
+        _resolve_scenario(cfg.scenario)  # InputError (a UserError) with one line if bad
     else:
         _tj_demonstrator(cfg.ours or "yield-before-junction")
         if not 0.0 <= float(cfg.p_arrive) <= 1.0:
-            raise ValueError(f"p_arrive must be in [0, 1], got {cfg.p_arrive!r}")
+            raise UserError(f"p_arrive must be in [0, 1], got {cfg.p_arrive!r}")
     return env
 
 
@@ -320,12 +321,13 @@ def _trained_policy(cfg: ReplayConfig) -> tuple[ReplayConfig, Callable[..., jax.
 
 def run_replay(cfg: ReplayConfig) -> int:
     """Record the episode ``cfg`` describes and write the video (the last frame held for about
-    a second); print a one-line JSON summary.
+    a second); print a one-line JSON summary and return 0.
 
-    Returns the exit code: 0 on success, 2 on bad input (one line on stderr), 1 if the video
-    cannot be written.
+    Raises :class:`~hybridmarl.errors.UserError` (one line) on bad input, a missing or broken
+    run directory, or a video that cannot be written; writing needs the ``video`` extra (Pillow,
+    imageio).
     """
-    from hybridmarl.envs.video import write_video
+    from hybridmarl.cli.extras import optional_extras
 
     trained = None
     try:
@@ -333,21 +335,31 @@ def run_replay(cfg: ReplayConfig) -> int:
             trained = _trained_policy(cfg)
             cfg = trained[0]
         env = _validate(cfg)
+    except UserError:
+        raise
     except ValueError as e:
-        print(f"hybridmarl replay: error: {e}", file=sys.stderr)
-        return 2
-    if env == "combat":
-        ours: Any = trained[1] if trained else (cfg.ours or "attack-closest")
-        frames, summary = record_combat_episode(cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps)
-    else:
-        ours = trained[1] if trained else (cfg.ours or "yield-before-junction")
-        frames, summary = record_tj_episode(ours, cfg.p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
-    if trained:
-        summary["ours"] = f"policy:{cfg.run_dir}"
-    try:
-        path = write_video(_hold_last(frames, cfg.fps), cfg.out, fps=cfg.fps)
-    except (OSError, RuntimeError) as e:
-        print(f"hybridmarl replay: error: cannot write {cfg.out!r}: {e}", file=sys.stderr)
-        return 1
+        raise UserError(str(e).splitlines()[0] if str(e) else "bad replay settings") from None
+    with optional_extras():
+        from hybridmarl.envs.video import write_video
+
+        if env == "combat":
+            ours: Any = trained[1] if trained else (cfg.ours or "attack-closest")
+            frames, summary = record_combat_episode(cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps)
+        else:
+            ours = trained[1] if trained else (cfg.ours or "yield-before-junction")
+            frames, summary = record_tj_episode(ours, cfg.p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
+        if trained:
+            summary["ours"] = f"policy:{cfg.run_dir}"
+        try:
+            path = write_video(_hold_last(frames, cfg.fps), cfg.out, fps=cfg.fps)
+        except (OSError, RuntimeError) as e:
+            raise UserError(f"cannot write {cfg.out!r}: {e}") from None
     print(json.dumps({**summary, "out": path, "fps": cfg.fps}))
     return 0
+
+
+def replay_command(args: list[str]) -> int:
+    """``hybridmarl replay [options]``."""
+    import tyro
+
+    return run_replay(tyro.cli(ReplayConfig, args=args, prog="hybridmarl replay"))
