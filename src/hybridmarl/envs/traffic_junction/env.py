@@ -218,6 +218,10 @@ def _spawn(
     return state, spawned
 
 
+# --------------------------------------------------------------------------------------------
+# The environment.
+# --------------------------------------------------------------------------------------------
+
 
 class TrafficJunction(LearningEnv[TJState, TJParams]):
     """CommNet "medium" Traffic Junction with the paper's rewards; see
