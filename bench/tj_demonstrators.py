@@ -22,8 +22,8 @@ import time
 import jax
 import jax.numpy as jnp
 
+from hybridmarl.envs.base import Policy
 from hybridmarl.envs.traffic_junction import (
-    Demonstrator,
     TJParams,
     TrafficJunction,
     always_gas,
@@ -31,7 +31,7 @@ from hybridmarl.envs.traffic_junction import (
 )
 
 
-def make_eval(env: TrafficJunction, policy: Demonstrator, episodes: int):
+def make_eval(env: TrafficJunction, policy: Policy, episodes: int):
     def episode(key: jax.Array, params: TJParams) -> dict[str, jax.Array]:
         k_reset, k_run = jax.random.split(key)
         _, state = env.reset(k_reset, params)
@@ -39,7 +39,7 @@ def make_eval(env: TrafficJunction, policy: Demonstrator, episodes: int):
         def body(carry, step_key):
             state, ret = carry
             k_act, k_env = jax.random.split(step_key)
-            actions = policy(state, k_act)
+            actions = policy(k_act, state)
             _, state, reward, _, _ = env.step(k_env, state, actions, params)
             return (state, ret + reward), None
 

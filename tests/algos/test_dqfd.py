@@ -19,7 +19,8 @@ from hybridmarl.algos.dqfd import PrioritizedReplay
 from hybridmarl.cli.main import main
 from hybridmarl.engine.state import UnitSpec, build_state
 from hybridmarl.envs.combat import CombatState
-from hybridmarl.envs.rewards import combat_agent_rewards, combat_damage_dealt
+from hybridmarl.envs.combat.rewards import agent_rewards as combat_agent_rewards
+from hybridmarl.envs.combat.rewards import damage_dealt as combat_damage_dealt
 from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint, subtree
 from hybridmarl.training.losses import (
     double_q_bootstrap,

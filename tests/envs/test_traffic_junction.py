@@ -1,4 +1,4 @@
-"""Traffic Junction (paper Section 5.3; reference notes §1), its PettingZoo adapter and video."""
+"""Traffic Junction (paper Section 5.3), its PettingZoo adapter and video."""
 
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ OBSERVE = jax.jit(ENV.observe)
 CRITIC = jax.jit(ENV.critic_features)
 KEY = jax.random.key(0)
 
-# The 12 routes as listed in reference §1.1 (row, col), written out independently of the
+# The 12 routes of CommNet's medium junction (row, col), written out independently of the
 # implementation's construction. Keys: (entry, turn).
 _S = [(r, 6) for r in range(14)]
 # fmt: off
@@ -62,7 +62,7 @@ EXPECTED_ROUTES: dict[tuple[str, str], list[tuple[int, int]]] = {
                     (7, 6), (8, 6), (9, 6), (10, 6), (11, 6), (12, 6), (13, 6)],
 }
 # fmt: on
-DIR_ORDER = ("N", "E", "W", "S")  # CommNet's source order (reference §1.1)
+DIR_ORDER = ("N", "E", "W", "S")  # CommNet's source order
 TURN_ORDER = ("straight", "right", "left")
 
 
@@ -119,7 +119,7 @@ def test_every_route_is_driven_cell_by_cell():
     def drive(state):
         def body(state, k):
             cell = car_cells(state)[0]
-            _, state, reward, _, info = ENV.step(k, state, always_gas(state, k), QUIET)
+            _, state, reward, _, info = ENV.step(k, state, always_gas(k, state), QUIET)
             return state, (cell, reward, info["arrivals"], state.active[0])
 
         return jax.lax.scan(body, state, jax.random.split(KEY, 15))[1]
@@ -184,7 +184,7 @@ def test_time_penalty_switch():
     state = ENV.make_state([(0, 0, 2), (5, 4, 1)], taus=[3, 7])
     brake = jnp.zeros(N, jnp.int32)
     _, _, reward, _, _ = STEP(KEY, state, brake, QUIET)
-    assert float(reward) == 0.0  # default: no time penalty (sparse reward, reference §1.0)
+    assert float(reward) == 0.0  # default: no time penalty (sparse reward, paper Section 5.3)
     on = QUIET.replace(time_penalty=True)
     _, _, reward, _, info = STEP(KEY, state, brake, on)
     # tau is incremented first: -0.01 * (4 + 8).
@@ -313,10 +313,10 @@ def test_critic_features_layout():
 def test_demonstrators_are_legal_and_jittable():
     ns = route_id("N", "straight")
     state = ENV.make_state([(0, ns, 3), (1, ns, 4), (2, route_id("W", "straight"), 7)])
-    assert np.asarray(always_gas(state, KEY)).tolist() == [1, 1, 1] + [0] * (N - 3)
-    acts = np.asarray(jax.jit(yield_before_junction)(state, KEY))
+    assert np.asarray(always_gas(KEY, state)).tolist() == [1, 1, 1] + [0] * (N - 3)
+    acts = np.asarray(jax.jit(yield_before_junction)(KEY, state))
     assert acts[3:].tolist() == [0] * (N - 3)
-    noisy = jax.jit(epsilon_demonstrator(always_gas, 1.0))(state, KEY)
+    noisy = jax.jit(epsilon_demonstrator(always_gas, 1.0))(KEY, state)
     assert (np.asarray(noisy)[3:] == 0).all()
 
 
@@ -325,16 +325,16 @@ def test_yield_rule_cases():
     ns, es, ws = route_id("N", "straight"), route_id("E", "straight"), route_id("W", "straight")
     # N car at the stop line (5,6), E car inside the junction at (6,7) heading to (6,6): yield.
     state = ENV.make_state([(0, ns, 5), (1, es, 6)])
-    assert np.asarray(yield_jit(state, KEY))[:2].tolist() == [0, 1]
+    assert np.asarray(yield_jit(KEY, state))[:2].tolist() == [0, 1]
     # A platoon with a free road moves together.
     state = ENV.make_state([(0, ns, 1), (1, ns, 2), (2, ns, 3)])
-    assert np.asarray(yield_jit(state, KEY))[:3].tolist() == [1, 1, 1]
+    assert np.asarray(yield_jit(KEY, state))[:3].tolist() == [1, 1, 1]
     # Two stop-line cars with crossing paths: the one that entered earlier goes.
     state = ENV.make_state([(0, ns, 5), (1, ws, 5)], taus=[9, 5])
-    assert np.asarray(yield_jit(state, KEY))[:2].tolist() == [1, 0]
+    assert np.asarray(yield_jit(KEY, state))[:2].tolist() == [1, 0]
     # ... and the car behind the waiting W car waits too.
     state = ENV.make_state([(0, ns, 5), (1, ws, 5), (2, ws, 4)], taus=[9, 5, 4])
-    assert np.asarray(yield_jit(state, KEY))[:3].tolist() == [1, 0, 0]
+    assert np.asarray(yield_jit(KEY, state))[:3].tolist() == [1, 0, 0]
 
 
 def test_p_arrive_curriculum():

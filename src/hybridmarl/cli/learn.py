@@ -182,10 +182,7 @@ def run_eval(cfg: EvalConfig) -> int:
             script_fn = E.mirrored_enemy(enemy_bundle, spec)
             from hybridmarl.training.task import Task
 
-            task = Task(spec)
-            from hybridmarl.envs.combat import Combat
-
-            task.env = Combat(scenario=spec.scenario, enemy=script_fn, max_turns=spec.max_turns)
+                task = Task(spec, enemy_script=script_fn)
             enemy_label = f"policy:{cfg.enemy_run_dir}"
         else:
             if cfg.enemy:

@@ -183,7 +183,7 @@ def _hold_last(frames: list[np.ndarray], fps: int) -> list[np.ndarray]:
 # --------------------------------------------------------------------------------------------
 
 
-def _tj_demonstrator(name: str) -> Callable[[Any, jax.Array], jax.Array]:
+def _tj_demonstrator(name: str) -> Callable[[jax.Array, Any], jax.Array]:
     from hybridmarl.envs.traffic_junction import always_gas, yield_before_junction
 
     key = name.strip().lower().replace("_", "-")
@@ -201,7 +201,7 @@ def _tj_demonstrator(name: str) -> Callable[[Any, jax.Array], jax.Array]:
 
 
 def record_tj_episode(
-    demonstrator: str | Callable[[Any, jax.Array], jax.Array] = "yield-before-junction",
+    demonstrator: str | Callable[[jax.Array, Any], jax.Array] = "yield-before-junction",
     p_arrive: float = 0.2,
     seed: int = 0,
     max_steps: int = 40,
@@ -232,7 +232,7 @@ def record_tj_episode(
     done = False
     while not done and len(states) <= max_steps:
         key, k_act, k_env = jax.random.split(key, 3)
-        _, state, reward, d, info = step(k_env, state, act(state, k_act), params)
+        _, state, reward, d, info = step(k_env, state, act(k_act, state), params)
         states.append(state)
         total += float(reward)
         collisions += int(info["collisions"])
@@ -309,14 +309,15 @@ def _trained_policy(cfg: ReplayConfig) -> tuple[ReplayConfig, Callable[..., jax.
     task = make_task(spec)
     module, variables = bundle.module, bundle.variables
 
-    def act(state: Any) -> jax.Array:
+    def act(key: jax.Array, state: Any) -> jax.Array:
+        del key
         return nets.actor_actions(module, variables, task.observe(state)[None], task.avail(state)[None])[0]
 
     if spec.env == "combat":
         cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None)
-        return cfg, lambda key, state: act(state)
+        return cfg, act
     cfg = dataclasses.replace(cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None)
-    return cfg, lambda state, key: act(state)
+    return cfg, act
 
 
 def run_replay(cfg: ReplayConfig) -> int:

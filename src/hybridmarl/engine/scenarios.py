@@ -34,6 +34,7 @@ from hybridmarl.engine import units as U
 from hybridmarl.engine.state import (
     DEFAULT_MAP_HEIGHT_PX,
     DEFAULT_MAP_WIDTH_PX,
+    WALK_TILE,
     UnitSpec,
     default_walkable,
     is_walkable_np,
@@ -211,13 +212,18 @@ def separated_state(
     return [_alternate(a, b), _alternate(b, a)]
 
 
+#: The point StateSymmetric mirrors its two armies around.
+SYMMETRIC_CENTER = (640, 360)
+
+
 def state_symmetric(
     rng: np.random.Generator, max_x: int, max_y: int, types: Sequence[tuple[str, int]]
 ) -> list[UnitSpec]:
     ts = _expand(types)
     r = _offsets(rng, len(ts), max_x, max_y)
-    a = [(t, 640 + int(dx), 360 + int(dy)) for t, (dx, dy) in zip(ts, r, strict=True)]
-    b = [(t, 640 - int(dx), 360 - int(dy)) for t, (dx, dy) in zip(ts, r, strict=True)]
+    cx, cy = SYMMETRIC_CENTER
+    a = [(t, cx + int(dx), cy + int(dy)) for t, (dx, dy) in zip(ts, r, strict=True)]
+    b = [(t, cx - int(dx), cy - int(dy)) for t, (dx, dy) in zip(ts, r, strict=True)]
     return _alternate(a, b)
 
 
@@ -264,6 +270,76 @@ class Scenario:
             else:
                 raise InputError(f"scenario {self.name!r}: unknown kind {self.kind!r}")
         return out[:n]
+
+
+# ----------------------------------------------------------------------------- geometry rules
+# What a scenario's generator fixes, for samplers that draw the same distribution elsewhere
+# (``hybridmarl.envs.combat`` draws start states inside JAX).
+
+
+def side_types(sc: Scenario) -> tuple[list[str], list[str]]:
+    """The unit types of each side, one entry per unit, in generator order."""
+    t0 = _expand(sc.side0)
+    # SparCraft's separated and symmetric generators give both players player 0's units.
+    t1 = t0 if sc.kind in ("separated", "symmetric") else _expand(sc.side1)
+    return t0, t1
+
+
+def generator_units(types0: Sequence[str], types1: Sequence[str]) -> list[UnitSpec]:
+    """Units in the generators' id order (P0, P1, P0, ...), all at the origin."""
+    return _alternate([(t, 0, 0) for t in types0], [(t, 0, 0) for t in types1])
+
+
+def disk_offsets(radius: int) -> np.ndarray:
+    """int32 ``[P, 2]``: every integer offset ``(dx, dy)`` with ``dx^2 + dy^2 <= radius^2``, the
+    support of :func:`disk_points` (uniform over these offsets)."""
+    r = int(radius)
+    d = np.arange(-r, r + 1)
+    dx, dy = np.meshgrid(d, d, indexing="xy")
+    keep = dx * dx + dy * dy <= r * r
+    return np.stack([dx[keep], dy[keep]], axis=1).astype(np.int32)
+
+
+def spread_anchors(sc: Scenario) -> tuple[tuple[int, int], tuple[int, int]]:
+    """Where a separated or symmetric scenario's offsets are added to (player 0, player 1):
+    player 0 at ``anchor0 + offset``, player 1 at ``anchor1 - offset``."""
+    if sc.kind == "symmetric":
+        return SYMMETRIC_CENTER, SYMMETRIC_CENTER
+    return sc.center0, sc.center1
+
+
+def _walkable_all(grid: np.ndarray, x: np.ndarray, y: np.ndarray) -> bool:
+    """Vectorised ``is_walkable_np`` over all points (C truncating division)."""
+    tx = np.fix(np.asarray(x) / WALK_TILE).astype(np.int64)
+    ty = np.fix(np.asarray(y) / WALK_TILE).astype(np.int64)
+    h, w = grid.shape
+    inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
+    return bool((inside & grid[np.clip(ty, 0, h - 1), np.clip(tx, 0, w - 1)]).all())
+
+
+def check_on_walkable(sc: Scenario, walkable: np.ndarray) -> None:
+    """Raise ``InputError`` unless every position ``sc`` can generate is on a walkable tile."""
+    grid = np.asarray(walkable)
+    if sc.kind == "disks":
+        for p, (c, r) in enumerate(((sc.center0, sc.radius0), (sc.center1, sc.radius1))):
+            pts = disk_offsets(r) + np.array(c, np.int32)
+            if not _walkable_all(grid, pts[:, 0], pts[:, 1]):
+                raise InputError(
+                    f"scenario {sc.name!r}: player {p}'s disk (centre {tuple(c)}, radius {r}) "
+                    "is not entirely on walkable map tiles"
+                )
+    elif sc.kind in ("separated", "symmetric"):
+        mx, my = sc.spread
+        dx, dy = np.meshgrid(np.arange(-mx, mx), np.arange(-my, my))
+        for ax, ay in spread_anchors(sc):
+            for sgn in (1, -1):
+                if not _walkable_all(grid, ax + sgn * dx, ay + sgn * dy):
+                    raise InputError(
+                        f"scenario {sc.name!r}: spread {sc.spread} around {(ax, ay)} leaves "
+                        "the walkable map"
+                    )
+    else:
+        raise InputError(f"scenario {sc.name!r}: unknown kind {sc.kind!r}")
 
 
 def _stable_hash(s: str) -> int:

@@ -6,22 +6,29 @@
 
 Known names: ``combat`` (:class:`hybridmarl.envs.combat.Combat`, the paper's SparCraft combat,
 Section 5.1) and ``traffic_junction`` (:class:`hybridmarl.envs.traffic_junction.TrafficJunction`,
-Section 5.3). The versioned names ``combat_v0`` and ``traffic_junction_v0`` are accepted too.
-Submodules are imported on first use, so ``import hybridmarl.envs`` stays cheap.
+Section 5.3). The versioned names ``combat_v0`` and ``traffic_junction_v0`` (and ``tj``) are
+accepted too. Submodules are imported on first use, so ``import hybridmarl.envs`` stays cheap.
+
+:func:`env_class` maps a name to its class; every class also says what learning on it needs
+(``hybridmarl.envs.base.LearningEnv``), so the training code never branches on the name.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-__all__ = ["ENV_NAMES", "make", "make_pettingzoo"]
+if TYPE_CHECKING:
+    from hybridmarl.envs.base import LearningEnv
+
+__all__ = ["ENV_NAMES", "canonical_env_name", "env_class", "make", "make_pettingzoo"]
 
 #: Canonical environment names accepted by :func:`make`.
 ENV_NAMES: tuple[str, ...] = ("combat", "traffic_junction")
-_ALIASES = {"combat_v0": "combat", "traffic_junction_v0": "traffic_junction"}
+_ALIASES = {"combat_v0": "combat", "traffic_junction_v0": "traffic_junction", "tj": "traffic_junction"}
 
 
-def _canonical(name: str) -> str:
+def canonical_env_name(name: str) -> str:
+    """The canonical name of an environment (one of :data:`ENV_NAMES`); ``ValueError`` if unknown."""
     key = str(name).strip().lower().replace("-", "_")
     key = _ALIASES.get(key, key)
     if key not in ENV_NAMES:
@@ -29,16 +36,20 @@ def _canonical(name: str) -> str:
     return key
 
 
-def make(name: str, **kwargs: Any) -> Any:
-    """The functional environment ``name`` built with ``kwargs`` (its constructor's arguments)."""
-    key = _canonical(name)
-    if key == "combat":
+def env_class(name: str) -> type[LearningEnv]:
+    """The class of the environment ``name`` (imported on first use)."""
+    if canonical_env_name(name) == "combat":
         from hybridmarl.envs.combat import Combat
 
-        return Combat(**kwargs)
+        return Combat
     from hybridmarl.envs.traffic_junction import TrafficJunction
 
-    return TrafficJunction(**kwargs)
+    return TrafficJunction
+
+
+def make(name: str, **kwargs: Any) -> Any:
+    """The functional environment ``name`` built with ``kwargs`` (its constructor's arguments)."""
+    return env_class(name)(**kwargs)
 
 
 def make_pettingzoo(

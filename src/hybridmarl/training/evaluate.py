@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +24,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hybridmarl.envs.stats import Z95 as Z95
+from hybridmarl.envs.stats import t_interval as t_interval
+from hybridmarl.envs.stats import wilson_interval as wilson_interval
 from hybridmarl.training import networks as nets
 from hybridmarl.training.checkpoint import (
     AVERAGE_PREFIX,
@@ -35,35 +37,6 @@ from hybridmarl.training.checkpoint import (
     subtree,
 )
 from hybridmarl.training.task import Task, TaskSpec, make_task, unflatten_named
-
-Z95 = 1.959963984540054
-
-
-def wilson_interval(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
-    """95% Wilson score interval of a binomial proportion."""
-    if n <= 0:
-        return (float("nan"), float("nan"))
-    p = successes / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return (max(0.0, centre - half), min(1.0, centre + half))
-
-
-def t_interval(x: np.ndarray, level: float = 0.95) -> tuple[float, float, float]:
-    """(mean, low, high): Student-t interval of the mean."""
-    x = np.asarray(x, np.float64)
-    n = x.size
-    if n == 0:
-        return (float("nan"), float("nan"), float("nan"))
-    m = float(x.mean())
-    if n == 1:
-        return (m, float("nan"), float("nan"))
-    from scipy.stats import t as student_t
-
-    half = float(student_t.ppf(0.5 + level / 2, n - 1) * x.std(ddof=1) / math.sqrt(n))
-    return (m, m - half, m + half)
-
 
 # -- playing episodes --------------------------------------------------------------------------------
 
@@ -140,29 +113,8 @@ def best_line(task: Task, result: dict[str, Any], best: dict[str, Any]) -> str:
 
 
 def summarize(task: Task, ep: dict[str, np.ndarray]) -> dict[str, Any]:
-    """W/R (or failure rate) with 95% intervals from per-episode metrics."""
-    n = int(next(iter(ep.values())).shape[0])
-    out: dict[str, Any] = {"n": n}
-    if task.kind == "combat":
-        wins = int(np.sum(ep["won"] > 0.5))
-        lo, hi = wilson_interval(wins, n)
-        r, rlo, rhi = t_interval(ep["terminal_hp_reward"])
-        out.update(
-            W=wins / n, W_ci95=[lo, hi], R=r, R_ci95=[rlo, rhi],
-            losses=float(np.mean(ep["lost"])), draws=float(np.mean(ep["draw"])),
-        )
-    else:
-        fails = int(np.sum(ep["failed"] > 0.5))
-        lo, hi = wilson_interval(fails, n)
-        slo, shi = wilson_interval(n - fails, n)
-        r, rlo, rhi = t_interval(ep["return"])
-        out.update(
-            failure_rate=fails / n, failure_rate_ci95=[lo, hi],
-            W=(n - fails) / n, W_ci95=[slo, shi], R=r, R_ci95=[rlo, rhi],
-            mean_arrivals=float(np.mean(ep["arrivals"])), mean_collisions=float(np.mean(ep["collisions"])),
-        )
-    out["mean_steps"] = float(np.mean(ep["steps"]))
-    return out
+    """W/R (or failure rate) with 95% intervals from per-episode metrics (:meth:`Task.summarize`)."""
+    return task.summarize(ep)
 
 
 # -- trained policies ------------------------------------------------------------------------------------
@@ -247,44 +199,20 @@ def mirrored_enemy(bundle: PolicyBundle, spec: TaskSpec):
     itself as player 0 on the left, as in training; its left/right moves are flipped back.
     Needs a policy trained with as many agents as the enemy has units, and vice versa.
     """
-    from hybridmarl.envs.combat import Combat, CombatState
+    from hybridmarl.envs.combat import learned_enemy
+    from hybridmarl.envs.combat.opponents import mirror_env
 
     me = make_task(spec)
     if me.kind != "combat" or bundle.spec.env != "combat":
         raise CheckpointError("--enemy-run-dir needs combat runs")
-    n0, n1 = me.env.num_agents, me.env.num_enemies
-    mirror = Combat(scenario=f"m{n1}v{n0}", enemy="attack-weakest", max_turns=spec.max_turns)
+    mirror = mirror_env(me.env)
     src = make_task(bundle.spec)
     if (src.num_agents, src.num_actions) != (mirror.num_agents, mirror.num_actions):
         raise CheckpointError(
             f"the enemy policy was trained with {src.num_agents} agents and {src.num_actions} actions; "
             f"as the enemy of {spec.scenario} it needs {mirror.num_agents} and {mirror.num_actions}"
         )
-    width = int(np.asarray(mirror.rules.walkable).shape[1] * 8)
-    module, variables = bundle.module, bundle.variables
-    u = me.env.num_slots
-
-    def script(key, game, ctx, p):
-        del key, ctx
-        flip = lambda a: a[::-1]  # noqa: E731 - swap the two player rows
-        g = game.replace(
-            **{f: flip(getattr(game, f)) for f in ("utype", "uid", "y", "py", "t_act", "last", "hp", "t_move", "t_attack")},
-            x=flip(width - 1 - game.x),
-            px=flip(width - 1 - game.px),
-            prev_hp_sum=game.prev_hp_sum[::-1],
-            ltd_total=game.ltd_total[::-1],
-            ltd2_total=game.ltd2_total[::-1],
-        )
-        st = CombatState(game=g, last_actions=jnp.full((2, u), -1, jnp.int32), init_hp=g.prev_hp_sum, steps=jnp.zeros((), jnp.int32))
-        obs = mirror.observe(st)
-        legal = mirror.get_avail_actions(st)
-        a = nets.actor_actions(module, variables, obs, legal)
-        codes = mirror.env_to_engine_actions(st, a)
-        codes = jnp.where(codes == 2, 3, jnp.where(codes == 3, 2, codes))  # left <-> right
-        out = jnp.zeros((u,), jnp.int32).at[: codes.shape[0]].set(codes)
-        return out.astype(jnp.int32)
-
-    return script
+    return learned_enemy(me.env, functools.partial(nets.actor_actions, bundle.module), bundle.variables)
 
 
 def evaluate_task(

@@ -1,7 +1,8 @@
 """A task = an environment plus what the learners need around it, behind one small interface.
 
 The learners (``algos.hybrid``, ``algos.bc``, ...) never branch on the environment; they use a
-:class:`Task`:
+:class:`Task`, and the Task does not branch either: everything environment-specific comes from
+the environment's class (``hybridmarl.envs.env_class``, protocol ``hybridmarl.envs.base.LearningEnv``).
 
 - ``env``: the functional environment (``hybridmarl.envs``), with its ``reset``/``step``/masks;
 - ``demonstrator(name)``: a scripted demonstrator as a pure env policy ``(key, state) -> [N]``:
@@ -16,7 +17,9 @@ The learners (``algos.hybrid``, ``algos.bc``, ...) never branch on the environme
 - ``value_features(state)``: the critic's input for ``V(s)`` (``env.critic_features`` with
   all-zero actions: combat ignores actions, and for Traffic Junction the paper's
   per-car "action one-hot" part then only marks which cars are present);
-- ``episode_stats(state, info)``: the per-episode metrics at the end of an episode.
+- ``episode_stats(state, info)``: the per-episode metrics at the end of an episode;
+- ``summarize(episodes)`` / ``result_line(summary)``: the evaluation summary of per-episode
+  metrics and its one-line form.
 
 ``TaskSpec`` is the hashable, JSON-able description stored in run metadata and datasets.
 """
@@ -34,15 +37,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl import envs
+from hybridmarl.envs.base import Policy, canonical_policy_name, split_noise
 from hybridmarl.errors import UserError
 from hybridmarl.io import flatten_named, unflatten_named
 
-Policy = Callable[[jax.Array, Any], jax.Array]
-
-ENV_CHOICES = ("combat", "traffic_junction")
-TJ_DEMONSTRATORS = ("always-gas", "yield-before-junction")
-#: The paper's cross-validation (Section 5.1): a model learned from c fights w and vice versa.
-CROSS_ENEMY = {"attack-closest": "attack-weakest", "attack-weakest": "attack-closest"}
+ENV_CHOICES = envs.ENV_NAMES
 
 
 class TaskError(UserError):
@@ -50,50 +49,35 @@ class TaskError(UserError):
 
 
 def canonical_env(name: str) -> str:
-    key = str(name).strip().lower().replace("-", "_")
-    key = {"combat_v0": "combat", "traffic_junction_v0": "traffic_junction", "tj": "traffic_junction"}.get(key, key)
-    if key not in ENV_CHOICES:
-        raise TaskError(f"unknown env {name!r} (known: {', '.join(ENV_CHOICES)})")
-    return key
+    """The canonical environment name (``hybridmarl.envs.ENV_NAMES``); ``TaskError`` if unknown."""
+    try:
+        return envs.canonical_env_name(name)
+    except ValueError:
+        raise TaskError(f"unknown env {name!r} (known: {', '.join(ENV_CHOICES)})") from None
 
 
 def split_demonstrator(name: str) -> tuple[str, float]:
     """``"attack-closest:0.1"`` -> (``"attack-closest"``, 0.1)."""
-    base, _, eps = str(name).partition(":")
-    if not eps:
-        return base.strip(), 0.0
     try:
-        e = float(eps)
-    except ValueError:
-        raise TaskError(f"demonstrator {name!r}: expected NAME or NAME:EPSILON") from None
-    if not 0.0 <= e <= 1.0:
-        raise TaskError(f"demonstrator {name!r}: epsilon must be in [0, 1]")
-    return base.strip(), e
+        return split_noise(name)
+    except ValueError as e:
+        raise TaskError(str(e.args[0])) from None
 
 
 def canonical_script(env: str, name: str) -> str:
     """Canonical demonstrator / enemy script name for ``env`` (keeps a ``:eps`` suffix)."""
-    base, eps = split_demonstrator(name)
-    if env == "combat":
-        from hybridmarl.engine.scripts import canonical_name
-
-        try:
-            base = canonical_name(base)
-        except KeyError as e:
-            raise TaskError(str(e.args[0])) from None
-    else:
-        key = base.lower().replace("_", "-")
-        key = {"gas": "always-gas", "yield": "yield-before-junction"}.get(key, key)
-        if key not in TJ_DEMONSTRATORS:
-            raise TaskError(f"unknown traffic_junction demonstrator {name!r} (known: {', '.join(TJ_DEMONSTRATORS)})")
-        base = key
-    return f"{base}:{eps:g}" if eps > 0 else base
+    cls = envs.env_class(canonical_env(env))
+    try:
+        return canonical_policy_name(cls, name)
+    except ValueError as e:
+        raise TaskError(str(e.args[0])) from None
 
 
 def default_enemy(demonstrator: str) -> str:
-    """The cross-validation enemy of a demonstrator (c <-> w), else attack-weakest."""
-    base = str(demonstrator).partition(":")[0].strip()
-    return CROSS_ENEMY.get(base, "attack-weakest")
+    """The cross-validation enemy of a demonstrator (c <-> w), else attack-weakest (combat)."""
+    from hybridmarl.envs.combat.opponents import cross_enemy
+
+    return cross_enemy(demonstrator)
 
 
 @dataclass(frozen=True)
@@ -117,26 +101,22 @@ class TaskSpec:
         return TaskSpec(**{k: v for k, v in d.items() if k in fields})
 
     def label(self) -> str:
-        if self.env == "combat":
-            return f"{self.scenario} vs {self.enemy}"
-        return f"traffic_junction (p_arrive {self.p_arrive:g}{', time penalty' if self.time_penalty else ''})"
+        return envs.env_class(self.env).spec_label(self)
 
 
 class Task:
-    """See the module docstring."""
+    """See the module docstring.
 
-    def __init__(self, spec: TaskSpec) -> None:
-        env_name = canonical_env(spec.env)
+    ``enemy_script``: an engine script (``(key, game, ctx, p) -> int32 [U]``, e.g.
+    ``hybridmarl.envs.combat.learned_enemy``) that plays the enemy instead of ``spec.enemy``.
+    """
+
+    def __init__(self, spec: TaskSpec, enemy_script: Callable[..., jax.Array] | None = None) -> None:
         self.spec = spec
-        self.kind = env_name
+        self.kind = canonical_env(spec.env)
+        self.env_class = envs.env_class(self.kind)
         try:
-            if env_name == "combat":
-                enemy = canonical_script("combat", spec.enemy)
-                self.env = envs.make("combat", scenario=spec.scenario, enemy=enemy, max_turns=spec.max_turns)
-                self.params = self.env.default_params
-            else:
-                self.env = envs.make("traffic_junction", num_agents=spec.num_cars)
-                self.params = self.env.default_params.replace(p_arrive=float(spec.p_arrive), time_penalty=bool(spec.time_penalty))
+            self.env, self.params = self.env_class.from_spec(spec, enemy_script=enemy_script)
         except TaskError:
             raise
         except (ValueError, KeyError) as e:
@@ -146,13 +126,9 @@ class Task:
         self.num_actions = int(self.env.num_actions)
         self.obs_dim = int(np.prod(self.env.observation_shape))
         self.critic_dim = int(self.env.critic_feature_size)
-        if env_name == "combat":
-            self.metric_names = ("won", "lost", "draw", "terminal_hp_reward")
-            #: (primary, secondary) metric of progress lines and curves: higher W, then R.
-            self.progress_metrics = ("won", "terminal_hp_reward")
-        else:
-            self.metric_names = ("failed", "success", "collisions", "arrivals")
-            self.progress_metrics = ("failed", "return")
+        self.metric_names: tuple[str, ...] = tuple(self.env_class.metric_names)
+        #: (primary, secondary) metric of progress lines and curves.
+        self.progress_metrics: tuple[str, str] = self.env_class.progress_metrics
 
     # -- environment ------------------------------------------------------------------------------
 
@@ -202,46 +178,34 @@ class Task:
 
     def episode_stats(self, state: Any, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
         """float32 metrics of an episode whose last step returned ``(state, info)``."""
-        f = jnp.float32
-        if self.kind == "combat":
-            return {k: info[k].astype(f) for k in self.metric_names}
-        return {
-            "failed": state.failed.astype(f),
-            "success": (~state.failed).astype(f),
-            "collisions": state.total_collisions.astype(f),
-            "arrivals": state.total_arrivals.astype(f),
-        }
+        return self.env.episode_metrics(state, info)
 
     def agent_rewards(self, state: Any, next_state: Any, done: jax.Array, info: dict[str, jax.Array]) -> jax.Array:
         """Per-agent rewards ``[N]`` of one step (the independent learners DQfD and OGTL)."""
-        from hybridmarl.envs.rewards import agent_rewards
-
-        return agent_rewards(self.kind, self.num_agents, state, next_state, done, info)
+        return self.env.agent_rewards(state, next_state, done, info)
 
     # -- evaluation -------------------------------------------------------------------------------
 
     @property
     def enemy(self) -> str | None:
         """The scripted opponent's name (combat), else None."""
-        return self.spec.enemy if self.kind == "combat" else None
+        return self.spec.enemy if self.env_class.has_enemy else None
 
     def against(self, enemy: str | None) -> Task:
         """This task with another scripted opponent (combat); tasks without one return themselves."""
-        if self.kind != "combat" or not enemy:
+        if not self.env_class.has_enemy or not enemy:
             return self
         return make_task(dataclasses.replace(self.spec, enemy=enemy))
 
+    def summarize(self, ep: dict[str, np.ndarray]) -> dict[str, Any]:
+        """The evaluation summary of per-episode metrics (``metric_names`` plus ``return`` and
+        ``steps``): ``n``, the environment's own measures with 95% intervals, ``mean_steps``."""
+        n = int(next(iter(ep.values())).shape[0])
+        return {"n": n, **self.env_class.summarize(ep), "mean_steps": float(np.mean(ep["steps"]))}
+
     def result_line(self, r: dict[str, Any]) -> str:
-        """One line of an evaluation result (``training.evaluate.summarize``'s dict)."""
-        if self.kind == "combat":
-            return (
-                f"eval vs {r['enemy']} ({r['n']} battles): W {r['W']:.2f} [{r['W_ci95'][0]:.2f}, {r['W_ci95'][1]:.2f}]  "
-                f"R {r['R']:+.3f} [{r['R_ci95'][0]:+.3f}, {r['R_ci95'][1]:+.3f}]"
-            )
-        return (
-            f"eval ({r['n']} episodes): failure rate {r['failure_rate']:.3f} "
-            f"[{r['failure_rate_ci95'][0]:.3f}, {r['failure_rate_ci95'][1]:.3f}]  return {r['R']:+.2f}"
-        )
+        """One line of an evaluation result (:meth:`summarize`'s dict)."""
+        return self.env_class.result_line(r)
 
     # -- demonstrators ------------------------------------------------------------------------------
 
@@ -249,16 +213,7 @@ class Task:
         """A scripted demonstrator as a pure env policy ``(key, state) -> int32 [N]``."""
         full = canonical_script(self.kind, name)
         base, eps = split_demonstrator(full)
-        if self.kind == "combat":
-            policy = self.env.script_policy(base)
-        else:
-            from hybridmarl.envs import traffic_junction as tj
-
-            fn = tj.always_gas if base == "always-gas" else tj.yield_before_junction
-
-            def policy(key: jax.Array, state: Any) -> jax.Array:
-                return fn(state, key)
-
+        policy = self.env.demonstrator(base)
         if eps <= 0:
             return policy
         return epsilon_policy(policy, self.avail, eps)
@@ -285,4 +240,16 @@ def make_task(spec: TaskSpec) -> Task:
     return Task(spec)
 
 
-__all__ = ["Task", "TaskError", "TaskSpec", "flatten_named", "make_task", "unflatten_named"]
+__all__ = [
+    "Policy",
+    "Task",
+    "TaskError",
+    "TaskSpec",
+    "canonical_env",
+    "canonical_script",
+    "default_enemy",
+    "flatten_named",
+    "make_task",
+    "split_demonstrator",
+    "unflatten_named",
+]

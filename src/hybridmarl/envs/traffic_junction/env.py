@@ -1,161 +1,30 @@
-"""Traffic Junction (CommNet "medium"), as used in Peng, Xing & Cao (IJCAI 2020), Section 5.3.
+"""The Traffic Junction environment: geometry, dynamics and :class:`TrafficJunction`.
 
-.. list-table::
-
-   * - Import
-     - ``from hybridmarl.envs.traffic_junction import TrafficJunction``
-   * - Agents
-     - ``car_0`` .. ``car_9`` (``num_agents=10``)
-   * - Actions
-     - ``Discrete(2)``: 0 = brake, 1 = gas
-   * - Observation shape
-     - ``(259,)`` float32 for 10 agents (``9 * (1 + N + 12) + 52``)
-   * - Critic features
-     - ``(10440,)`` float32 for 10 agents (``4 * N * (259 + 2)``)
-   * - Episode length
-     - 40 steps (``TJParams.max_steps``)
-   * - Version
-     - ``traffic_junction_v0``
-
-Description
------------
-A four-way junction of two two-lane roads on a 14x14 grid with right-hand traffic
-(reference notes ``shared/reference/traffic_junction_and_baselines.md`` §1.1; coordinates are
-``(row, col)``, 0-indexed, row 0 at the top):
-
-- **Road cells**: rows 6 and 7 (all columns) plus columns 6 and 7 (all rows): 52 cells. The
-  junction is the 2x2 block rows 6-7 x cols 6-7. Lanes: column 6 southbound, column 7
-  northbound, row 7 eastbound, row 6 westbound.
-- **Entries** (spawn cells): North (0,6) heading south, East (6,13) heading west, West (7,0)
-  heading east, South (13,7) heading north.
-- **Routes**: 3 per entry (straight, right turn, left turn), 12 in all, stored as data in
-  :data:`ROUTE_CELLS` (``[12, 15, 2]`` int32, padded with -1) and :data:`ROUTE_LENGTHS`
-  (13 right / 14 straight / 15 left, counting the entry and exit cells). Route ids follow
-  CommNet's global numbering (§1.1 "Route numbering"): sources in the order **N, E, W, S** and
-  within a source **straight, right, left**, i.e. ``route_id = 3 * direction + turn``
-  (N-straight = 0, N-right = 1, N-left = 2, E-straight = 3, ..., S-left = 11).
-
-Dynamics (CommNet semantics, reference §1.2 A, chosen in §1.2 "Recommendation")
----------------------------------------------------------------------------------
-One call to :meth:`TrafficJunction.step`, in this order:
-
-1. Every active car applies its action: gas moves it to the next cell of its route, brake keeps
-   it in place. Gas requested for an inactive slot is ignored (the adapter rejects it).
-2. For every car that was active at the start of the step: ``tau += 1``; the car *collides* if
-   two or more such cars (at their new cells) share its cell; the car *arrives* if it now stands
-   on the last cell of its route. Arriving cars are counted in the collision check of this step
-   (the check is simultaneous over all cars, which removes CommNet's dependence on the loop
-   order of its sequential ``update``) and are then removed at once; their slot becomes free.
-   Cars are never removed for colliding and keep moving; every step they overlap counts again.
-3. Arrivals: for each entry in the order N, E, W, S, if fewer than ``num_agents`` cars are
-   active, with probability ``p_arrive`` a new car is placed on that entry cell with a uniformly
-   random route of that entry. Its agent id is drawn **uniformly among the free slots**
-   (CommNet "take a random inactive agent"; ids are recycled, so one id can drive several cars
-   per episode). Spawning onto an occupied entry cell is allowed (CommNet ``add_block=false``);
-   the overlap is counted as a collision at the next step if neither car moves away.
-4. ``t += 1``; the episode is ``done`` when ``t == max_steps`` (40). It is never cut short.
-
-There are no cars at ``t = 0`` (reference §1.2 A.6): the first cars appear after the first step.
-``reset`` therefore does not use its key; all randomness is drawn in ``step``.
-
-Rewards (paper Section 5.3; reference §1.0)
---------------------------------------------
-The reward is global and shared: ``reward = r_c * N_c + r_a * N_a`` with ``r_c = -5`` per car
-that is in a shared cell at this step (so a colliding pair gives -10, the same as CommNet's
-per-car cost) and ``r_a = +1`` per car arriving at its destination. Optionally
-(``time_penalty=True``) each car active at the start of the step also gets ``-0.01 * tau``
-(``tau`` = steps since it entered, counted after this step's increment), as in CommNet/IC3Net.
-The default is **off**: the paper stresses "global and sparse" rewards and lists only the
-collision and arrival terms (reference §1.0 "Time penalty"). ``info["car_rewards"]`` holds the
-per-slot terms whose sum is ``reward``.
-
-Termination and success
------------------------
-``done`` after ``max_steps`` steps. An episode **fails** if any collision happened at any step
-(``state.failed`` / ``info["failed"]``); success is ``done & ~failed``.
-
-Observation (per car, float32, length ``9 * F + 52`` with ``F = 1 + N + 12``; 259 for N = 10)
----------------------------------------------------------------------------------------------
-A CommNet-style {id, location, route} encoding of the 3x3 vision window (paper Section 5.3:
-"the observation of a car, which is the same to [Sukhbaatar and Fergus, 2016]"; reference
-§1.3), made compact by giving each visible car's location implicitly through the window cell
-it is in plus the observer's own location:
-
-- ``obs[0 : 9F]`` the 3x3 window centred on the car, cells in row-major order of the offsets
-  ``(dr, dc)`` in ``{-1, 0, 1}^2`` (north up; ``(0, 0)``, the car's own cell, is cell 4). Each
-  cell has ``F`` values: ``[0]`` number of cars in the cell (the CommNet "agent" word count;
-  2 or more means a collision), ``[1 : 1+N]`` multi-hot of the agent ids of the cars there,
-  ``[1+N : 1+N+12]`` number of those cars on each route id (a multi-hot unless cars on the
-  same route overlap). Cells off the grid or off the road are all
-  zero (CommNet does not encode walls); the car itself always appears in cell 4.
-- ``obs[9F : 9F+52]`` one-hot of the car's own cell among the 52 road cells, indexed in
-  row-major order of the grid (:data:`ROAD_INDEX`).
-
-Inactive slots get an all-zero observation. Values lie in ``[0, N]``.
-
-Critic features (paper Section 5.3; length ``4 * N * (obs + 2)``; 10440 for N = 10)
------------------------------------------------------------------------------------
-"The representation of each car combines its observation and action one-hot encoding. The
-feature vector concatenates representations of all cars each way. For positions without a car,
-a nominal car whose representations are 0 is assigned." Layout ``[4, N, obs_size + 2]``
-flattened (C order):
-
-- axis 0: the car's entry direction, N, E, W, S (``route_id // 3``);
-- axis 1: ``N`` slots per direction (enough for every car to come from one direction), holding
-  that direction's active cars sorted by progress along the route, furthest first (ties: lower
-  agent id first), so the layout does not depend on which recycled id drives which car;
-  unused slots are zero;
-- axis 2: the car's observation (above) followed by the one-hot of its action (brake, gas).
-
-No time feature is included (the paper does not list one).
-
-Parameters (:class:`TJParams`, all pytree leaves, so they can change without recompiling)
----------------------------------------------------------------------------------------
-``p_arrive`` (0.2, the evaluation value, reference §1.4), ``max_steps`` (40),
-``collision_reward`` (-5.0), ``arrival_reward`` (1.0), ``time_penalty`` (False),
-``time_penalty_coef`` (0.01). :func:`p_arrive_curriculum` gives CommNet's linear curriculum
-0.05 -> 0.2 (reference §1.4).
-
-Demonstrators
--------------
-Pure jittable ``(state, key) -> int32 actions [N]`` policies (sub-optimal on purpose; the paper
-needs sub-optimal demonstrations, Section 5.3 reports a demonstrator failing 72% of episodes):
-:func:`always_gas` (fails ~97.5% of episodes at p_arrive 0.2, ~18 arrivals per episode) and
-:func:`yield_before_junction` (rule documented on the function; ~0-0.3% failures but only ~13
-arrivals). :func:`epsilon_demonstrator` adds controlled noise. ``bench/tj_demonstrators.py``
-measures them.
-
-Rendering and PettingZoo
-------------------------
-:meth:`TrafficJunction.render` draws 24-px cells: dark off-road, grey road (lighter junction),
-a square per car coloured by route (one hue per entry, one shade per turn; overlapping cars as
-stripes), a red frame on cells holding two or more cars, and ``t`` in the corner.
-``hybridmarl.envs.pettingzoo.PettingZooAdapter(TrafficJunction())`` is a PettingZoo
-``ParallelEnv``: all ``N`` car slots stay agents for the whole episode (an empty slot gets a
-zero observation and only action 0 legal; the mask is ``infos[agent]["action_mask"]``).
-``hybridmarl.envs.video.write_video`` turns rendered frames into a GIF.
-
-Version history
----------------
-- v0: initial.
+The environment's description is the package's docstring, :mod:`hybridmarl.envs.traffic_junction`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from hybridmarl.envs.base import MultiAgentEnv
+from hybridmarl.envs.base import LearningEnv, Policy
+from hybridmarl.envs.stats import t_interval, wilson_interval
 
 __all__ = [
+    "BRAKE",
     "DIRECTIONS",
+    "GAS",
     "GRID_SIZE",
     "JUNCTION_CELLS",
+    "JUNCTION_FLAT",
     "JUNCTION_START",
+    "NUM_ACTIONS",
     "NUM_ROAD_CELLS",
     "NUM_ROUTES",
     "ROAD_INDEX",
@@ -165,24 +34,21 @@ __all__ = [
     "ROUTE_LENGTHS",
     "ROUTE_NAMES",
     "TURNS",
-    "Demonstrator",
     "TJParams",
     "TJState",
     "TrafficJunction",
-    "always_gas",
     "car_cells",
-    "epsilon_demonstrator",
+    "flat_cells",
     "p_arrive_curriculum",
     "route_id",
-    "yield_before_junction",
 ]
 
 # --------------------------------------------------------------------------------------------
-# Geometry (reference §1.1). Built from the lane description, stored as plain numpy data.
+# Geometry. Built from the lane description, stored as plain numpy data.
 # --------------------------------------------------------------------------------------------
 
 GRID_SIZE = 14
-DIRECTIONS = ("N", "E", "W", "S")  # CommNet source order, also the spawn order (§1.1, §1.2 A.3)
+DIRECTIONS = ("N", "E", "W", "S")  # CommNet source order, also the spawn order
 TURNS = ("straight", "right", "left")
 NUM_DIRECTIONS = len(DIRECTIONS)
 NUM_ROUTES = NUM_DIRECTIONS * len(TURNS)
@@ -245,7 +111,8 @@ ROAD_INDEX[ROAD_MASK] = np.arange(NUM_ROAD_CELLS, dtype=np.int32)
 ROAD_INDEX.setflags(write=False)
 """Road-cell index (row-major over road cells) of each grid cell, -1 off-road."""
 
-_JUNCTION_FLAT = np.array([r * GRID_SIZE + c for r, c in JUNCTION_CELLS], dtype=np.int32)
+#: Flat grid index (``row * 14 + col``) of each of :data:`JUNCTION_CELLS`.
+JUNCTION_FLAT = np.array([r * GRID_SIZE + c for r, c in JUNCTION_CELLS], dtype=np.int32)
 ROUTE_JUNCTION_MASK = np.array(
     [
         [
@@ -274,12 +141,12 @@ class TJParams(struct.PyTreeNode):
     """Traffic Junction parameters. Every field is a pytree leaf: changing a value (e.g. the
     curriculum's ``p_arrive``) does not trigger recompilation."""
 
-    p_arrive: float = 0.2  # evaluation value, CommNet medium (reference §1.4)
+    p_arrive: float = 0.2  # evaluation value, CommNet medium
     max_steps: int = 40  # paper Section 5.3
     collision_reward: float = -5.0  # per colliding car per step, paper Section 5.3
     arrival_reward: float = 1.0  # per arriving car, paper Section 5.3
-    time_penalty: bool = False  # CommNet's -0.01*tau; off: paper uses sparse rewards (ref §1.0)
-    time_penalty_coef: float = 0.01  # CommNet / IC3Net value (reference §1.2)
+    time_penalty: bool = False  # CommNet's -0.01*tau; off: the paper's rewards are sparse
+    time_penalty_coef: float = 0.01  # CommNet / IC3Net value
 
 
 class TJState(struct.PyTreeNode):
@@ -298,7 +165,7 @@ class TJState(struct.PyTreeNode):
     total_arrivals: jax.Array  # int32 [] cars that reached their destination
 
 
-def _flat_cells(route: jax.Array, pos: jax.Array) -> jax.Array:
+def flat_cells(route: jax.Array, pos: jax.Array) -> jax.Array:
     """Flat grid index ``row * 14 + col`` of position ``pos`` along ``route``."""
     cells = jnp.asarray(ROUTE_CELLS)[route, jnp.minimum(pos, jnp.asarray(ROUTE_LENGTHS)[route] - 1)]
     return cells[..., 0] * GRID_SIZE + cells[..., 1]
@@ -327,7 +194,7 @@ def _empty_state(num_agents: int) -> TJState:
 def _spawn(
     key: jax.Array, state: TJState, p_arrive: jax.Array | float
 ) -> tuple[TJState, jax.Array]:
-    """Arrivals (reference §1.2 A.3): entries in order N, E, W, S; a random free slot each."""
+    """Arrivals: entries in order N, E, W, S; a random free slot each."""
     n = state.active.shape[0]
     # One draw for everything: each separate jax.random call costs ~0.5 s of XLA compile on CPU.
     u = jax.random.uniform(key, (NUM_DIRECTIONS, 2 + n))
@@ -355,22 +222,10 @@ def _spawn(
 # The environment.
 # --------------------------------------------------------------------------------------------
 
-# 12 route colours for rendering: one hue family per entry, three shades for the turns.
-# fmt: off
-_ROUTE_COLOURS = np.array(
-    [
-        (31, 119, 180), (100, 170, 230), (10, 60, 120),  # N: blues
-        (44, 160, 44), (120, 210, 110), (20, 95, 20),  # E: greens
-        (255, 127, 14), (255, 190, 110), (170, 80, 0),  # W: oranges
-        (148, 103, 189), (200, 170, 230), (90, 50, 130),  # S: purples
-    ],
-    dtype=np.uint8,
-)
-# fmt: on
 
-
-class TrafficJunction(MultiAgentEnv[TJState, TJParams]):
-    """CommNet "medium" Traffic Junction with the paper's rewards; see the module docstring."""
+class TrafficJunction(LearningEnv[TJState, TJParams]):
+    """CommNet "medium" Traffic Junction with the paper's rewards; see
+    :mod:`hybridmarl.envs.traffic_junction`."""
 
     def __init__(self, num_agents: int = 10) -> None:
         if num_agents < 1:
@@ -391,7 +246,7 @@ class TrafficJunction(MultiAgentEnv[TJState, TJParams]):
     # -- core API -----------------------------------------------------------------------------
 
     def reset(self, key: jax.Array, params: TJParams | None = None) -> tuple[jax.Array, TJState]:
-        del key, params  # no cars at t = 0 (reference §1.2 A.6)
+        del key, params  # no cars at t = 0
         state = _empty_state(self.num_agents)
         return self.observe(state), state
 
@@ -410,7 +265,7 @@ class TrafficJunction(MultiAgentEnv[TJState, TJParams]):
         pos = jnp.where(gas, jnp.minimum(state.pos + 1, lengths - 1), state.pos)
         tau = state.tau + active0.astype(jnp.int32)
 
-        flat = _flat_cells(state.route, pos)
+        flat = flat_cells(state.route, pos)
         counts = (
             jnp.zeros((GRID_SIZE * GRID_SIZE,), jnp.int32).at[flat].add(active0.astype(jnp.int32))
         )
@@ -458,7 +313,7 @@ class TrafficJunction(MultiAgentEnv[TJState, TJParams]):
         return state.active
 
     def observe(self, state: TJState) -> jax.Array:
-        """float32 ``[N, 259]`` observations (layout in the module docstring)."""
+        """float32 ``[N, 259]`` observations (layout in :mod:`hybridmarl.envs.traffic_junction`)."""
         n = self.num_agents
         active = state.active
         cells = car_cells(state)
@@ -547,42 +402,93 @@ class TrafficJunction(MultiAgentEnv[TJState, TJParams]):
         """uint8 ``[14*cell_px, 14*cell_px, 3]``: dark off-road, grey road (lighter junction),
         a square per car coloured by route, a red frame on cells holding 2+ cars."""
         del params
-        from PIL import Image, ImageDraw
+        from hybridmarl.envs.traffic_junction.render import render
 
-        g, c = GRID_SIZE, cell_px
-        img = np.full((g * c, g * c, 3), 40, dtype=np.uint8)
-        for r in range(g):
-            for col in range(g):
-                if ROAD_MASK[r, col]:
-                    shade = 170 if (r, col) in JUNCTION_CELLS else 135
-                    img[r * c + 1 : (r + 1) * c - 1, col * c + 1 : (col + 1) * c - 1] = shade
-        active = np.asarray(state.active)
-        cells = np.asarray(car_cells(state))
-        routes = np.asarray(state.route)
-        occupants: dict[tuple[int, int], list[int]] = {}
-        for i in np.flatnonzero(active):
-            occupants.setdefault((int(cells[i, 0]), int(cells[i, 1])), []).append(int(routes[i]))
-        m = max(c // 6, 1)
-        red = np.array((220, 20, 20), np.uint8)
-        for (r, col), rids in occupants.items():
-            y0, y1, x0, x1 = r * c, (r + 1) * c, col * c, (col + 1) * c
-            # Overlapping cars share the square as vertical stripes, so each stays visible.
-            edges = np.linspace(x0 + m, x1 - m, len(rids) + 1).round().astype(int)
-            for k, rid in enumerate(rids):
-                img[y0 + m : y1 - m, edges[k] : edges[k + 1]] = _ROUTE_COLOURS[rid]
-            if len(rids) > 1:
-                f = max(c // 12, 1)
-                img[y0 : y0 + f, x0:x1] = red
-                img[y1 - f : y1, x0:x1] = red
-                img[y0:y1, x0 : x0 + f] = red
-                img[y0:y1, x1 - f : x1] = red
-        pil = Image.fromarray(img)
-        ImageDraw.Draw(pil).text((3, 2), f"t={int(state.t)}", fill=(230, 230, 230))
-        return np.asarray(pil, dtype=np.uint8).copy()
+        return render(state, cell_px)
+
+    # -- learning on it (``hybridmarl.envs.base.LearningEnv``) -------------------------------------
+
+    metric_names: ClassVar[tuple[str, ...]] = ("failed", "success", "collisions", "arrivals")
+    #: Progress lines and curves: lower failure rate, then higher return.
+    progress_metrics: ClassVar[tuple[str, str]] = ("failed", "return")
+    demonstrator_names: ClassVar[tuple[str, ...]] = ("always-gas", "yield-before-junction")
+    has_enemy: ClassVar[bool] = False
+
+    @classmethod
+    def from_spec(cls, spec: Any, enemy_script: Any = None) -> tuple[TrafficJunction, TJParams]:
+        """``spec.num_cars`` car slots, ``spec.p_arrive`` and ``spec.time_penalty``."""
+        if enemy_script is not None:
+            raise ValueError("traffic_junction has no enemy to replace")
+        env = cls(num_agents=spec.num_cars)
+        params = env.default_params.replace(p_arrive=float(spec.p_arrive), time_penalty=bool(spec.time_penalty))
+        return env, params
+
+    @classmethod
+    def spec_label(cls, spec: Any) -> str:
+        return f"traffic_junction (p_arrive {spec.p_arrive:g}{', time penalty' if spec.time_penalty else ''})"
+
+    @classmethod
+    def canonical_demonstrator(cls, name: str) -> str:
+        from hybridmarl.envs.traffic_junction.demonstrators import canonical_demonstrator
+
+        return canonical_demonstrator(name)
+
+    def demonstrator(self, name: str) -> Policy:
+        """:func:`always_gas` or :func:`yield_before_junction` by name."""
+        from hybridmarl.envs.traffic_junction.demonstrators import (
+            DEMONSTRATORS,
+            canonical_demonstrator,
+        )
+
+        return DEMONSTRATORS[canonical_demonstrator(name)]
+
+    def episode_metrics(self, state: TJState, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+        del info
+        f = jnp.float32
+        return {
+            "failed": state.failed.astype(f),
+            "success": (~state.failed).astype(f),
+            "collisions": state.total_collisions.astype(f),
+            "arrivals": state.total_arrivals.astype(f),
+        }
+
+    def agent_rewards(
+        self, state: TJState, next_state: TJState, done: jax.Array, info: dict[str, jax.Array]
+    ) -> jax.Array:
+        """The env's own per-car reward terms, ``info["car_rewards"]`` (collision -5 per
+        colliding car, arrival +1 per arriving car; they sum to the global reward). The paper
+        does not evaluate DQfD/OGTL here ("the reward cannot be decomposed directly", Section
+        5.3); this is what the env offers."""
+        del state, next_state, done
+        return jnp.asarray(info["car_rewards"], jnp.float32)
+
+    @classmethod
+    def summarize(cls, episodes: Mapping[str, np.ndarray]) -> dict[str, Any]:
+        """The failure rate (an episode fails when any collision happens) with its 95% Wilson
+        interval; ``W`` is the success rate and ``R`` the mean return (Section 5.3)."""
+        ep = episodes
+        n = int(next(iter(ep.values())).shape[0])
+        fails = int(np.sum(ep["failed"] > 0.5))
+        lo, hi = wilson_interval(fails, n)
+        slo, shi = wilson_interval(n - fails, n)
+        r, rlo, rhi = t_interval(ep["return"])
+        return dict(
+            failure_rate=fails / n, failure_rate_ci95=[lo, hi],
+            W=(n - fails) / n, W_ci95=[slo, shi], R=r, R_ci95=[rlo, rhi],
+            mean_arrivals=float(np.mean(ep["arrivals"])), mean_collisions=float(np.mean(ep["collisions"])),
+        )
+
+    @classmethod
+    def result_line(cls, result: Mapping[str, Any]) -> str:
+        r = result
+        return (
+            f"eval ({r['n']} episodes): failure rate {r['failure_rate']:.3f} "
+            f"[{r['failure_rate_ci95'][0]:.3f}, {r['failure_rate_ci95'][1]:.3f}]  return {r['R']:+.2f}"
+        )
 
 
 # --------------------------------------------------------------------------------------------
-# Curriculum (reference §1.4).
+# Curriculum.
 # --------------------------------------------------------------------------------------------
 
 
@@ -599,7 +505,7 @@ def p_arrive_curriculum(
     ``end_epoch`` (constant outside), rounded towards ``start`` to multiples of ``quantum``.
 
     Defaults are CommNet's medium curriculum (add_rate 0.05 -> 0.2, epochs 100 -> 200 of 300;
-    IC3Net uses the same rule with 0.01 quantisation), reference §1.4. "Epoch" is whatever unit
+    IC3Net uses the same rule with 0.01 quantisation). "Epoch" is whatever unit
     the caller counts (epochs, updates or episodes). ``quantum=0`` disables rounding. Jittable;
     use as ``params.replace(p_arrive=p_arrive_curriculum(epoch))``.
     """
@@ -610,113 +516,3 @@ def p_arrive_curriculum(
         # The epsilon keeps exact multiples (e.g. 0.15) from flooring one quantum too low.
         delta = jnp.sign(delta) * jnp.floor(jnp.abs(delta) / quantum + 1e-4) * quantum
     return jnp.asarray(start + delta, jnp.float32)
-
-
-# --------------------------------------------------------------------------------------------
-# Demonstrators: pure, jittable (state, key) -> int32 actions [N].
-# --------------------------------------------------------------------------------------------
-
-Demonstrator = Callable[[TJState, jax.Array], jax.Array]
-
-
-def always_gas(state: TJState, key: jax.Array) -> jax.Array:
-    """Gas for every active car (brake for inactive slots, the only legal action there).
-
-    Probably the paper's demonstrator: Section 5.3 notes that "the network needs to learn
-    'forward' at any time" to imitate it.
-    """
-    del key
-    return state.active.astype(jnp.int32)
-
-
-def yield_before_junction(state: TJState, key: jax.Array) -> jax.Array:
-    """A myopic "first come, first served stop line" rule (reference §1.5 suggestion 2, ours).
-
-    For an active car at route index ``p`` (every route's junction starts at index 6, so
-    ``p == 5`` is the stop line):
-
-    - **Stop line**: brake iff a junction cell on its route holds another car now, or is the
-      next cell of a car now inside the junction ("about to be occupied": cars in the junction
-      are assumed to go), or another car waiting at its own stop line has priority and their
-      junction paths share a cell. Priority: the car that entered the grid earlier (larger
-      ``tau``), then entry direction N > E > W > S, then lower id.
-    - **Elsewhere** (approach lanes, junction, exit lanes): brake iff a car in the next cell of
-      its route brakes (resolved front to back, so a queue moves as a platoon); cars inside
-      the junction are thus never held by the stop-line rule.
-    - **Shared cell** (e.g. a car spawned onto a queued car): only the oldest car of the cell
-      (larger ``tau``, then lower id) may go; the others brake.
-
-    It is safe but slow, i.e. sub-optimal in the other direction from :func:`always_gas`: a
-    stop-line car waits until every junction cell of its path is clear, so junction crossings
-    are serialised. It cannot stop a new car from spawning onto a queue that has backed up to
-    the entry cell (both then brake and collide every step), which is its only failure mode in
-    practice. Measured with ``bench/tj_demonstrators.py`` (1000 episodes, p_arrive 0.2): about
-    0-0.3% failures and 13.0 arrivals per episode, against about 97.5% failures and 18.0
-    arrivals for :func:`always_gas` (2.4% failures at p_arrive 0.5). Not tuned; mix it with
-    :func:`epsilon_demonstrator` for a demonstrator of intermediate quality.
-    """
-    del key
-    n = state.active.shape[0]
-    active = state.active
-    pos, route, tau = state.pos, state.route, state.tau
-    lengths = jnp.asarray(ROUTE_LENGTHS)[route]
-    flat = _flat_cells(route, pos)
-    nxt = _flat_cells(route, jnp.minimum(pos + 1, lengths - 1))
-    ids = jnp.arange(n)
-    other = active[None, :] & (ids[None, :] != ids[:, None])  # [i, j]: j is another live car
-
-    junction = jnp.asarray(_JUNCTION_FLAT)
-    in_junction = active & jnp.any(flat[:, None] == junction[None, :], axis=1)
-    # [i, k]: junction cell k holds a car other than i, or is the next cell of one in the junction.
-    held = jnp.any(other[:, :, None] & (flat[None, :, None] == junction[None, None, :]), axis=1)
-    claimed = jnp.any(
-        (other & in_junction[None, :])[:, :, None]
-        & (nxt[None, :, None] == junction[None, None, :]),
-        axis=1,
-    )
-    path = jnp.asarray(ROUTE_JUNCTION_MASK)[route]  # [N, 4]
-    path_blocked = jnp.any(path & (held | claimed), axis=1)
-
-    at_stop = active & (pos == JUNCTION_START - 1)
-    direction = route // len(TURNS)
-    conflict = jnp.any(path[:, None, :] & path[None, :, :], axis=-1)
-    # [i, j]: j has priority over i.
-    first = (tau[None, :] > tau[:, None]) | (
-        (tau[None, :] == tau[:, None])
-        & (
-            (direction[None, :] < direction[:, None])
-            | ((direction[None, :] == direction[:, None]) & (ids[None, :] < ids[:, None]))
-        )
-    )
-    rival = jnp.any(other & at_stop[None, :] & conflict & first, axis=1)
-
-    older = (tau[None, :] > tau[:, None]) | (
-        (tau[None, :] == tau[:, None]) & (ids[None, :] < ids[:, None])
-    )
-    not_oldest = jnp.any(other & (flat[None, :] == flat[:, None]) & older, axis=1)
-
-    base = not_oldest | (at_stop & (path_blocked | rival))
-    ahead = other & (nxt[:, None] == flat[None, :])  # [i, j]: j stands in i's next cell
-    follows = active & ~at_stop
-
-    def propagate(_: int, brake: jax.Array) -> jax.Array:
-        return base | (follows & jnp.any(ahead & brake[None, :], axis=1))
-
-    # A chain of followers has at most n cars, so n rounds reach the fixed point.
-    brake = jax.lax.fori_loop(0, n, propagate, base)
-    return (active & ~brake).astype(jnp.int32)
-
-
-def epsilon_demonstrator(policy: Demonstrator, epsilon: float) -> Demonstrator:
-    """``policy`` with each active car's action replaced by a uniform one with prob ``epsilon``
-    (reference §1.5 suggestion 3: controlled sub-optimality). Still pure and jittable."""
-
-    def noisy(state: TJState, key: jax.Array) -> jax.Array:
-        k_policy, k_flip, k_act = jax.random.split(key, 3)
-        actions = policy(state, k_policy)
-        n = actions.shape[0]
-        flip = jax.random.uniform(k_flip, (n,)) < epsilon
-        random_actions = jax.random.randint(k_act, (n,), 0, NUM_ACTIONS)
-        return jnp.where(flip & state.active, random_actions, actions).astype(jnp.int32)
-
-    return noisy
