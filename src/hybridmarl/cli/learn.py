@@ -182,7 +182,7 @@ def run_eval(cfg: EvalConfig) -> int:
             script_fn = E.mirrored_enemy(enemy_bundle, spec)
             from hybridmarl.training.task import Task
 
-                task = Task(spec, enemy_script=script_fn)
+            task = Task(spec, enemy_script=script_fn)
             enemy_label = f"policy:{cfg.enemy_run_dir}"
         else:
             if cfg.enemy:

@@ -31,7 +31,6 @@ import numpy as np
 from hybridmarl.errors import UserError
 
 __all__ = [
-    "TJ_DEMONSTRATORS",
     "ReplayConfig",
     "record_combat_episode",
     "record_tj_episode",
@@ -39,7 +38,6 @@ __all__ = [
 ]
 
 #: Traffic Junction demonstrators by name (``hybridmarl.envs.traffic_junction``).
-TJ_DEMONSTRATORS = ("always-gas", "yield-before-junction")
 _FINAL_HOLD_S = 1.0  # the last frame is repeated for about this long, so the ending is readable
 
 
@@ -184,20 +182,12 @@ def _hold_last(frames: list[np.ndarray], fps: int) -> list[np.ndarray]:
 
 
 def _tj_demonstrator(name: str) -> Callable[[jax.Array, Any], jax.Array]:
-    from hybridmarl.envs.traffic_junction import always_gas, yield_before_junction
+    from hybridmarl.envs.traffic_junction.demonstrators import DEMONSTRATORS, canonical_demonstrator
 
-    key = name.strip().lower().replace("_", "-")
-    table = {
-        "always-gas": always_gas,
-        "gas": always_gas,
-        "yield-before-junction": yield_before_junction,
-        "yield": yield_before_junction,
-    }
-    if key not in table:
-        raise UserError(
-            f"unknown Traffic Junction demonstrator {name!r} (known: {', '.join(TJ_DEMONSTRATORS)})"
-        )
-    return table[key]
+    try:
+        return DEMONSTRATORS[canonical_demonstrator(name)]
+    except ValueError as e:
+        raise UserError(str(e)) from None
 
 
 def record_tj_episode(
