@@ -97,10 +97,16 @@ def run_train(args: list[str]) -> int:
         f"--preset {{{', '.join(mod.PRESETS)}}} (default paper) sets the defaults below."
     )
     cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
+    from hybridmarl.errors import EXIT_DIVERGED, TrainingDiverged
+
     try:
-        return int(mod.train(cfg))
+        mod.train(cfg)
     except errors as e:
         return _fail(str(e))
+    except TrainingDiverged as e:
+        print(f"hybridmarl: training stopped: {e}", file=sys.stderr)
+        return EXIT_DIVERGED
+    return 0
 
 
 # -- eval ------------------------------------------------------------------------------------------------
