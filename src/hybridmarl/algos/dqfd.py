@@ -13,7 +13,7 @@ Section 5.2; docs/baselines.md), as independent learners sharing one Q network.
              buffer (FIFO); one update every 'train_every' env steps on minibatches drawn by
              proportional prioritised replay from demonstrations and agent data together; the
              target network is copied every 'target_update_every' updates;
-    Phase 4  evaluation ('algos.evaluate': legal argmax of Q, W and R with 95% CIs).
+    Phase 4  evaluation (Section 5.1: legal argmax of Q, W and R with 95% CIs).
 
 The Q network has the actor's architecture (Section 5.1, "re-implemented by the same setting and
 network architecture") with |A| outputs, read as Q-values; it is saved as 'actor.*' so

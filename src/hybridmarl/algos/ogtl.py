@@ -17,7 +17,7 @@
              given by Hu et al.).
     Stage 3  evaluation (legal argmax of Q; 'hybridmarl eval' loads it like an actor).
 
-The machinery (buffer, losses, compiled updates, checkpoints, resume) is 'algos.dqfd''s; only
+The machinery (buffer, losses, compiled updates, checkpoints, resume) is DQfD's ('algos.dqfd'); only
 the switches differ.
 
 Reward shaping (an option of OGTL's RL stage, docs/baselines.md: a bonus when the agent's action
