@@ -44,9 +44,9 @@ def _fail(msg: str) -> int:
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
+    from hybridmarl.errors import UserError
     from hybridmarl.training.checkpoint import CheckpointError
     from hybridmarl.training.demos import DatasetError
-    from hybridmarl.errors import UserError
     from hybridmarl.training.task import TaskError
 
     return (TaskError, DatasetError, CheckpointError, UserError)
