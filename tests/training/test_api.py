@@ -106,3 +106,19 @@ def test_train_and_load_policy_predict(tmp_path, capsys):
     np.testing.assert_array_equal(got, expected)
     np.testing.assert_array_equal(policy.predict(np.asarray(obs[2]), np.asarray(legal[2])), expected[2])
     assert np.take_along_axis(np.asarray(legal), got[..., None], -1).all()
+
+
+def test_divergence_raises_and_the_command_line_exits_3(tmp_path, capsys):
+    """A NaN loss raises 'TrainingDiverged' from 'train'; 'hybridmarl train' prints one line
+    and exits with code 3."""
+    from hybridmarl.algos.bc import PRESETS as BC
+    from hybridmarl.cli.main import main
+    from hybridmarl.errors import EXIT_DIVERGED, TrainingDiverged
+
+    cfg = BC["toy"]("traffic_junction").replace(progress=False, actor_lr=float("nan"), run_dir=str(tmp_path / "api"))
+    with pytest.raises(TrainingDiverged, match="behavioural-cloning loss"):
+        hybridmarl.train(cfg)
+    argv = ["train", "--algo", "bc", "--preset", "toy", "--env", "traffic_junction", "--actor-lr", "nan", "--no-progress", "--run-dir", str(tmp_path / "cli")]
+    assert main(argv) == EXIT_DIVERGED
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "training stopped" in err[0] and "NaN" in err[0], err
