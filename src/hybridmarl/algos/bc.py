@@ -8,14 +8,16 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
 import jax
+from tyro.conf import OmitArgPrefixes
 
 from hybridmarl.training import networks as nets
 from hybridmarl.training.checkpoint import prefixed, save_checkpoint
-from hybridmarl.training.config import TrainConfig, check_finite
+from hybridmarl.training.config import Options, TrainConfig, check_finite
 from hybridmarl.training.run import Run, TrainResult
 from hybridmarl.training.task import flatten_named
 
@@ -23,8 +25,8 @@ ALGO = "bc"
 
 
 @dataclass(frozen=True)
-class BCConfig(TrainConfig):
-    """Behavioural cloning of the demonstrator with the actor network."""
+class CloningOptions(Options):
+    """The demonstrations and the supervised fit."""
 
     demo_observations: int = 10_000
     """Demonstration observations recorded from a script demonstrator (Section 5.1: 10,000)."""
@@ -40,6 +42,13 @@ class BCConfig(TrainConfig):
     """Discount recorded with the dataset's returns (Section 5.1: 0.995)."""
     actor_hidden: tuple[int, ...] = nets.ACTOR_HIDDEN
     """Actor FC widths (Section 5.1: 512, 256, 256)."""
+
+
+@dataclass(frozen=True)
+class BCConfig(TrainConfig):
+    """Behavioural cloning of the demonstrator with the actor network."""
+
+    cloning: OmitArgPrefixes[CloningOptions] = dataclasses.field(default_factory=CloningOptions)
 
 
 def _paper(env: str) -> BCConfig:

@@ -50,6 +50,7 @@ imitation stage, no margin loss during RL).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from collections.abc import Callable
@@ -59,10 +60,11 @@ from typing import Any, ClassVar, Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tyro.conf import OmitArgPrefixes
 
 from hybridmarl.training import networks as nets
 from hybridmarl.training.checkpoint import prefixed
-from hybridmarl.training.config import TrainConfig, check_finite, key_data
+from hybridmarl.training.config import Options, TrainConfig, check_finite, key_data
 from hybridmarl.training.losses import (
     double_q_bootstrap,
     huber,
@@ -78,9 +80,10 @@ ALGO = "dqfd"
 
 
 @dataclass(frozen=True)
-class DQfDConfig(TrainConfig):
-    """DQfD: pre-training on demonstrations, then prioritised replay of demonstrations and own
-    data with TD, n-step TD, large-margin and L2 losses (Hester et al. 2018)."""
+class DQfDBudgetOptions(Options):
+    """Budget and parallelism of the interaction phase."""
+
+    RUN_ONLY = frozenset({"total_episodes"})
 
     total_episodes: int = 20_000
     """Interaction episodes (the paper does not state its budget; as 'hybrid')."""
@@ -88,30 +91,48 @@ class DQfDConfig(TrainConfig):
     """Games played in parallel during interaction (not in the paper)."""
     chunk_steps: int = 8
     """Env steps per compiled call; buffer, updates and logs happen in between."""
-    gamma: float = 0.995
-    """Discount (Section 5.1: λ = 0.995; the baselines use "the same setting", Section 5.2)."""
+
+
+@dataclass(frozen=True)
+class DemoOptions(Options):
+    """Phases 1-2: the demonstrations and the pre-training on them."""
+
     demo_observations: int = 10_000
     """Demonstration observations recorded from a script demonstrator (Section 5.1: 10,000)."""
     pretrain_updates: int = 50_000
-    """Minibatch updates on demonstrations only before interacting (Hester et al. 2018: 750,000 on
-    Atari, "10-50k is reasonable" for these tasks)."""
+    """Minibatch updates on demonstrations only before interacting (Hester et al. 2018: 750,000
+    on Atari; these tasks are far smaller, not given in the paper)."""
     pretrain_td: bool = True
     """Pre-train with the TD terms too (DQfD: the full loss, Hester et al. 2018). False: the
     large-margin loss only (pure imitation)."""
     keep_demos: bool = True
     """Keep the demonstrations in the buffer during interaction (DQfD: yes, Hester et al. 2018)."""
+
+
+@dataclass(frozen=True)
+class LossOptions(Options):
+    """The loss J(Q) = J_DQ + λ1 J_n + λ2 J_E + λ3 J_L2 (Hester et al. 2018)."""
+
+    gamma: float = 0.995
+    """Discount (Section 5.1: λ = 0.995; the baselines use "the same setting", Section 5.2)."""
+    n_step: int = 10
+    """n of the n-step return (Hester et al. 2018: 10)."""
     lambda_nstep: float = 1.0
     """λ1, weight of the n-step TD loss (Hester et al. 2018: 1.0)."""
     lambda_margin: float = 1.0
     """λ2, weight of the large-margin loss on demonstration samples (Hester et al. 2018: 1.0)."""
     lambda_margin_online: float | None = None
-    """λ2 during interaction (default: 'lambda_margin'; OGTL: 0)."""
+    """λ2 during interaction (default: lambda_margin; OGTL: 0)."""
     lambda_l2: float = 1e-5
     """λ3, weight of the L2 penalty on the weights (Hester et al. 2018: 1e-5)."""
     margin: float = 0.8
     """Margin l(a_E, a) for a != a_E (Hester et al. 2018: 0.8)."""
-    n_step: int = 10
-    """n of the n-step return (Hester et al. 2018: 10)."""
+
+
+@dataclass(frozen=True)
+class ReplayOptions(Options):
+    """Prioritised replay, update schedule and target network."""
+
     batch_size: int = 32
     """Agent-transitions per minibatch (Hester et al. 2018: 32)."""
     train_every: int = 4
@@ -120,31 +141,57 @@ class DQfDConfig(TrainConfig):
     updates_per_call: int = 8
     """Minibatches per compiled update call (priorities are refreshed after each call)."""
     target_update_every: int = 10_000
-    """Copy the online network to the target network every this many updates (Hester et al. 2018:
-    C = 10,000)."""
+    """Copy the online network to the target network every this many updates (Hester et al.
+    2018: C = 10,000)."""
     buffer_size: int = 50_000
-    """Joint steps (rows) of agent data kept, FIFO, besides the demonstrations (Hester et al. 2018: 10^6
-    transitions; a row holds one transition per agent)."""
+    """Joint steps (rows) of agent data kept, FIFO, besides the demonstrations (Hester et al.
+    2018: 10^6 transitions; a row holds one transition per agent)."""
     per_alpha: float = 0.4
     """Prioritised replay exponent α (Hester et al. 2018: 0.4; 0 = uniform replay)."""
     per_beta0: float = 0.6
-    """Importance-sampling exponent β at the start of interaction, annealed to 1 (Hester et al. 2018)."""
+    """Importance-sampling exponent β at the start of interaction, annealed to 1 (Hester et al.
+    2018)."""
     per_eps_agent: float = 0.001
     """ε_a, priority bonus of agent transitions (Hester et al. 2018: 0.001)."""
     per_eps_demo: float = 1.0
     """ε_d, priority bonus of demonstration transitions (Hester et al. 2018: 1.0)."""
+
+
+@dataclass(frozen=True)
+class ExplorationOptions(Options):
+    """ε-greedy exploration during interaction (legal actions only)."""
+
     eps_start: float = 0.01
-    """ε-greedy exploration at the start of interaction (Hester et al. 2018: 0.01)."""
+    """ε at the start of interaction (Hester et al. 2018: 0.01)."""
     eps_end: float = 0.01
-    """ε-greedy exploration after 'eps_decay_episodes' (Hester et al. 2018: 0.01)."""
+    """ε after eps_decay_episodes (Hester et al. 2018: 0.01)."""
     eps_decay_episodes: int = 0
-    """Episodes of linear decay from 'eps_start' to 'eps_end' (0: none)."""
+    """Episodes of linear decay from eps_start to eps_end (0: none)."""
+
+
+@dataclass(frozen=True)
+class QNetworkOptions(Options):
+    """The Q network (the actor's architecture, Section 5.1) and its optimisation."""
+
     optimizer: Literal["sgd", "adam"] = "sgd"
     """Optimiser (Section 5.1: SGD for all networks; "the same setting", Section 5.2)."""
     lr: float = 1e-3
     """Learning rate (Section 5.1: 10^-3)."""
     actor_hidden: tuple[int, ...] = nets.ACTOR_HIDDEN
     """Q network FC widths before the |A| outputs (the actor's, Section 5.1: 512, 256, 256)."""
+
+
+@dataclass(frozen=True)
+class DQfDConfig(TrainConfig):
+    """DQfD: pre-training on demonstrations, then prioritised replay of demonstrations and own
+    data with TD, n-step TD, large-margin and L2 losses (Hester et al. 2018)."""
+
+    budget: OmitArgPrefixes[DQfDBudgetOptions] = dataclasses.field(default_factory=DQfDBudgetOptions)
+    demos: OmitArgPrefixes[DemoOptions] = dataclasses.field(default_factory=DemoOptions)
+    loss: OmitArgPrefixes[LossOptions] = dataclasses.field(default_factory=LossOptions)
+    replay: OmitArgPrefixes[ReplayOptions] = dataclasses.field(default_factory=ReplayOptions)
+    exploration: OmitArgPrefixes[ExplorationOptions] = dataclasses.field(default_factory=ExplorationOptions)
+    q_network: OmitArgPrefixes[QNetworkOptions] = dataclasses.field(default_factory=QNetworkOptions)
 
 
 def _paper(env: str) -> DQfDConfig:

@@ -33,35 +33,77 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+from tyro.conf import OmitArgPrefixes
+
 from hybridmarl.algos import dqfd
+from hybridmarl.training.config import Options
 from hybridmarl.training.run import TrainResult
 
 ALGO = "ogtl"
 
 
 @dataclass(frozen=True)
-class OGTLConfig(dqfd.DQfDConfig):
-    """OGTL: imitation of the demonstrator, then DQN on per-agent rewards without demonstrations."""
+class OGTLDemoOptions(dqfd.DemoOptions):
+    """Stage 1: the demonstrations and the imitation of the tactic."""
 
     keep_demos: bool = False
     """Keep the demonstrations in the buffer in stage 2 (OGTL: no, Hu et al. 2018)."""
+
+
+@dataclass(frozen=True)
+class OGTLLossOptions(dqfd.LossOptions):
+    """The loss (stage 1: DQfD's terms on the demonstrations; stage 2: double DQN)."""
+
     lambda_margin_online: float | None = 0.0
     """λ2 of the margin loss in stage 2 (OGTL: 0, "no demonstration loss", Hu et al. 2018)."""
     lambda_nstep: float = 0.0
     """λ1 of the n-step TD loss (OGTL's RL is plain DQN, Hu et al. 2018: 0)."""
+
+
+@dataclass(frozen=True)
+class OGTLReplayOptions(dqfd.ReplayOptions):
+    """Replay (uniform), update schedule and target network."""
+
     per_alpha: float = 0.0
     """Replay prioritisation exponent (0: DQN's uniform replay, Hu et al. 2018)."""
+
+
+@dataclass(frozen=True)
+class OGTLExplorationOptions(dqfd.ExplorationOptions):
+    """ε-greedy exploration in stage 2 (legal actions only)."""
+
     eps_start: float = 0.1
     """ε-greedy at the start of stage 2 (not given by Hu et al.)."""
     eps_end: float = 0.01
     """ε-greedy after the decay (not given by Hu et al.)."""
     eps_decay_episodes: int = 5_000
-    """Episodes of linear ε decay (a quarter of 'total_episodes'; not given by Hu et al.)."""
+    """Episodes of linear ε decay (a quarter of total_episodes; not given by Hu et al.)."""
+
+
+@dataclass(frozen=True)
+class ShapingOptions(Options):
+    """The optional agreement bonus of stage 2 (module docstring)."""
+
     agreement_bonus: float = 0.0
-    """W: stage-2 reward bonus for playing the script's action (Hu et al. 2018, optional; 0 = off).
-    In units of the per-agent reward, where one Marine shot at m5v5 is 0.03."""
+    """W: stage-2 reward bonus for playing the script's action (optional; 0 = off). In units of
+    the per-agent reward, where one Marine shot at m5v5 is 0.03."""
     agreement_decay_episodes: int = 0
     """Stage-2 episodes over which the bonus decays linearly to 0 (0: it stays W)."""
+
+
+@dataclass(frozen=True)
+class OGTLConfig(dqfd.DQfDConfig):
+    """OGTL: imitation of the demonstrator, then DQN on per-agent rewards without demonstrations."""
+
+    demos: OmitArgPrefixes[OGTLDemoOptions] = dataclasses.field(default_factory=OGTLDemoOptions)
+    loss: OmitArgPrefixes[OGTLLossOptions] = dataclasses.field(default_factory=OGTLLossOptions)
+    replay: OmitArgPrefixes[OGTLReplayOptions] = dataclasses.field(default_factory=OGTLReplayOptions)
+    exploration: OmitArgPrefixes[OGTLExplorationOptions] = dataclasses.field(default_factory=OGTLExplorationOptions)
+    shaping: OmitArgPrefixes[ShapingOptions] = dataclasses.field(default_factory=ShapingOptions)
+
+
+#: OGTL's switches on DQfD's machinery: their values come from OGTLConfig, not from DQfD's presets.
+SWITCHES = ("keep_demos", "lambda_margin_online", "lambda_nstep", "per_alpha", "eps_start", "eps_end")
 
 
 def agreement_schedule(cfg: OGTLConfig):
@@ -80,12 +122,9 @@ def _from(make):
     def preset(env: str) -> OGTLConfig:
         # DQfD's preset with OGTL's switches; epsilon decays over the first quarter of the budget.
         base = make(env)
-        kw = {f.name: getattr(base, f.name) for f in dataclasses.fields(dqfd.DQfDConfig)}
-        ogtl = OGTLConfig()
-        for name in ("keep_demos", "lambda_margin_online", "lambda_nstep", "per_alpha", "eps_start", "eps_end"):
-            kw[name] = getattr(ogtl, name)
+        kw = {n: getattr(base, n) for n in dqfd.DQfDConfig.field_names() if n not in SWITCHES}
         kw["eps_decay_episodes"] = max(1, base.total_episodes // 4)
-        return OGTLConfig(**kw)
+        return OGTLConfig().replace(**kw)
 
     preset.__doc__ = f"{make.__doc__} With OGTL's switches (no demonstrations in stage 2)."
     return preset
