@@ -16,7 +16,6 @@ over the rows both computed).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import statistics
 import time
@@ -25,14 +24,9 @@ import jax
 import jax.numpy as jnp
 
 from hybridmarl.algos.hybrid.brd import best_response_dynamics
-from hybridmarl.algos.hybrid.train import (
-    PRESETS,
-    _static_cfg,
-    _vars,
-    build_learner,
-    continuation_policy,
-    simulated_steps,
-)
+from hybridmarl.algos.hybrid.config import PRESETS
+from hybridmarl.algos.hybrid.learner import build_learner, continuation_policy, simulated_steps
+from hybridmarl.algos.hybrid.train import _vars
 from hybridmarl.training import networks as nets
 from hybridmarl.training.checkpoint import load_checkpoint, subtree
 from hybridmarl.training.rollout import new_pool
@@ -49,9 +43,9 @@ def main() -> None:
     p.add_argument("--warm-steps", type=int, default=10)
     p.add_argument("--repeats", type=int, default=3)
     args = p.parse_args()
-    cfg = dataclasses.replace(PRESETS[args.preset]("combat"), scenario=args.scenario)
+    cfg = PRESETS[args.preset]("combat").replace(scenario=args.scenario)
     task = make_task(cfg.task_spec())
-    learner = build_learner(task, _static_cfg(cfg), cfg.demonstrator_name())
+    learner = build_learner(task, cfg, cfg.demonstrator_name())
     b = cfg.num_envs
     actor = nets.init_net(learner.actor_mod, jax.random.key(0), task.obs_dim, learner.actor_tx)
     critic = nets.init_net(learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx)
@@ -70,7 +64,7 @@ def main() -> None:
 
         return jax.lax.scan(body, states, jax.random.split(key, args.warm_steps))[0]
 
-    calls = {wb: jax.jit(lambda k, s, a, lg, wb=wb: best_response_dynamics(q_fn, k, s, a, lg, cfg.brd_iterations, cfg.brd_min_gain, wb)) for wb in args.work_batches}
+    calls = {wb: jax.jit(lambda k, s, a, lg, wb=wb: best_response_dynamics(q_fn, k, s, a, lg, cfg.brd_iterations, wb)) for wb in args.work_batches}
     states = new_pool(task, jax.random.key(2), b).states
     sets = []
     for i in range(args.state_sets):

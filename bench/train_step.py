@@ -14,7 +14,6 @@ chunk (``chunk``, per step), the host-side episode assembly and buffer insertion
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 
@@ -23,14 +22,9 @@ import jax.numpy as jnp
 import optax
 
 from hybridmarl.algos.hybrid.brd import best_response_dynamics
-from hybridmarl.algos.hybrid.train import (
-    PRESETS,
-    _static_cfg,
-    _vars,
-    build_learner,
-    continuation_policy,
-    simulated_steps,
-)
+from hybridmarl.algos.hybrid.config import PRESETS
+from hybridmarl.algos.hybrid.learner import build_learner, continuation_policy, simulated_steps
+from hybridmarl.algos.hybrid.train import _vars
 from hybridmarl.training import networks as nets
 from hybridmarl.training.losses import actor_loss, advantages
 from hybridmarl.training.rollout import EpisodeAssembler, ReplayBuffer, new_pool
@@ -58,13 +52,13 @@ def main() -> None:
     p.add_argument("--work-batch", type=int, help="override the preset's brd_work_batch (0: the dense schedule)")
     p.add_argument("--lookahead-policy", choices=["start", "actor", "demonstrator"], help="override the preset's lookahead_policy")
     args = p.parse_args()
-    cfg = dataclasses.replace(PRESETS[args.preset](args.env), scenario=args.scenario)
+    cfg = PRESETS[args.preset](args.env).replace(scenario=args.scenario)
     if args.work_batch is not None:
-        cfg = dataclasses.replace(cfg, brd_work_batch=args.work_batch)
+        cfg = cfg.replace(brd_work_batch=args.work_batch)
     if args.lookahead_policy:
-        cfg = dataclasses.replace(cfg, lookahead_policy=args.lookahead_policy)
+        cfg = cfg.replace(lookahead_policy=args.lookahead_policy)
     task = make_task(cfg.task_spec())
-    learner = build_learner(task, _static_cfg(cfg), cfg.demonstrator_name())
+    learner = build_learner(task, cfg, cfg.demonstrator_name())
     b = cfg.num_envs
     actor = nets.init_net(learner.actor_mod, jax.random.key(0), task.obs_dim, learner.actor_tx)
     critic = nets.init_net(learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx)

@@ -16,14 +16,13 @@ Prints one JSON object: the metric of Ã and of A^D on the same states (combat: 
 Traffic Junction: failure rate), how many decisions Ã changed, for combat which kinds of action
 it changed into which, and for a critic its training and held-out mean squared error.
 
-    python experiments/central_brd.py --env combat --scenario m5v5 --q exact --iterations 1 --min-gain 0.03
+    python experiments/central_brd.py --env combat --scenario m5v5 --q exact --iterations 1
     python experiments/central_brd.py --env traffic_junction --q critic --lookahead 4
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from collections import Counter
@@ -32,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hybridmarl.algos.hybrid import train as H
+from hybridmarl.algos import hybrid as H
 from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
 from hybridmarl.training import networks as nets
 from hybridmarl.training.rollout import EpisodeAssembler, ReplayBuffer, new_pool
@@ -52,7 +51,6 @@ def main() -> None:
     ap.add_argument("--q", default="critic", choices=["critic", "exact"])
     ap.add_argument("--lookahead", type=int, default=1, help="simulated steps before the critic (--q critic)")
     ap.add_argument("--iterations", type=int, default=7, help="Alg. 1 iterations (paper: 7)")
-    ap.add_argument("--min-gain", type=float, default=0.0, help="switch only for a larger gain (0: argmax)")
     ap.add_argument("--games", type=int, default=64, help="games played by each policy")
     ap.add_argument("--pretrain-samples", type=int, default=None, help="critic pairs (default: the quick-paper preset's)")
     ap.add_argument("--fit-steps", type=int, default=None, help="critic SGD steps (default: the quick-paper preset's)")
@@ -63,17 +61,16 @@ def main() -> None:
 
     demo_name = args.demonstrator or ("attack-closest" if args.env == "combat" else "always-gas")
     base = H.PRESETS["quick-paper"](args.env)
-    cfg = dataclasses.replace(
-        base, scenario=args.scenario, enemy=args.enemy, demonstrator=demo_name, seed=args.seed,
+    cfg = base.replace(scenario=args.scenario, enemy=args.enemy, demonstrator=demo_name, seed=args.seed,
         pretrain_samples=args.pretrain_samples or base.pretrain_samples,
         critic_pretrain_steps=args.fit_steps or base.critic_pretrain_steps,
     )
     task = make_task(cfg.task_spec())
-    learner = H.build_learner(task, H._static_cfg(cfg), demo_name)
+    learner = H.build_learner(task, cfg, demo_name)
     demo = task.demonstrator(demo_name)
     out: dict = {"env": args.env, "scenario": args.scenario if args.env == "combat" else None, "demonstrator": demo_name,
                  "q": args.q, "lookahead": args.lookahead if args.q == "critic" else None, "iterations": args.iterations,
-                 "min_gain": args.min_gain, "games": args.games, "seed": args.seed}
+                 "games": args.games, "seed": args.seed}
 
     # -- the critic (Eq. 3 on the demonstrator's returns), unless Q is exact ----------------------
     def zero_value(s):
@@ -121,7 +118,7 @@ def main() -> None:
         keys = jax.random.split(key, b)
         a0 = jax.vmap(demo)(keys, states).astype(jnp.int32)
         legal = jax.vmap(task.avail)(states)
-        res = best_response_dynamics(q_fn, keys, states, a0, legal, args.iterations, args.min_gain)
+        res = best_response_dynamics(q_fn, keys, states, a0, legal, args.iterations)
         return a0, res.actions, jnp.sum(legal, -1) >= 2
 
     @jax.jit

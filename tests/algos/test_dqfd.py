@@ -255,8 +255,8 @@ def test_ogtl_agreement_schedule_decays_linearly_and_is_off_by_default():
     from hybridmarl.algos import ogtl
 
     assert ogtl.agreement_schedule(ogtl.OGTLConfig()) is None
-    w = ogtl.agreement_schedule(ogtl.OGTLConfig(agreement_bonus=0.2, agreement_decay_episodes=100))
+    w = ogtl.agreement_schedule(ogtl.OGTLConfig().replace(agreement_bonus=0.2, agreement_decay_episodes=100))
     assert w is not None
     assert [w(0), w(50), w(100), w(500)] == pytest.approx([0.2, 0.1, 0.0, 0.0])
-    const = ogtl.agreement_schedule(ogtl.OGTLConfig(agreement_bonus=0.2))
+    const = ogtl.agreement_schedule(ogtl.OGTLConfig().replace(agreement_bonus=0.2))
     assert const is not None and const(10_000) == pytest.approx(0.2)

@@ -6,7 +6,6 @@ combat m3v3 from the attack-closest script), the
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 
 import numpy as np
@@ -125,12 +124,10 @@ def test_every_preset_builds_and_round_trips_through_config_json():
         for name, make in mod.PRESETS.items():
             for env in ("combat", "traffic_junction"):
                 cfg = make(env)
-                # The ``traffic-junction`` preset is the paper's Section 5.3 setting, whatever --env says.
-                assert cfg.env == ("traffic_junction" if name == "traffic-junction" else env), (algo, name, env)
+                assert cfg.env == env, (algo, name, env)
                 assert config_from_dict(type(cfg), config_to_dict(cfg)) == cfg, (algo, name, env)
     hybrid = algo_module("hybrid").PRESETS
     combat, tj = hybrid["quick"]("combat"), hybrid["quick"]("traffic_junction")
-    assert hybrid["quick-lookahead"]("combat") == combat  # the old name of ``quick`` keeps working
     assert (combat.lookahead_steps, combat.actor_target, combat.actor_steps, combat.total_episodes) == (8, "best", 4, 3000)
     assert (combat.lookahead_policy, combat.num_envs, combat.actor_average_from) == ("demonstrator", 128, 1500)
     assert (tj.lookahead_steps, tj.actor_target, tj.total_episodes) == (4, "advantage", 1_500)
@@ -141,4 +138,4 @@ def test_every_preset_builds_and_round_trips_through_config_json():
         wo = hybrid["quick-wo-d"](env)
         assert (wo.pretrain_critic, wo.brd_start, wo.lookahead_policy) == (False, "actor", "start")
         full = hybrid["quick"](env)
-        assert dataclasses.replace(wo, pretrain_critic=True, lookahead_policy=full.lookahead_policy) == full
+        assert wo.replace(pretrain_critic=True, lookahead_policy=full.lookahead_policy) == full

@@ -5,7 +5,6 @@ atomicity) and exact resume of a training run."""
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 
 import jax
@@ -211,7 +210,7 @@ def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
     """--eval-every/--keep-best: due every k episodes, evaluated on the selection seed (never the
     final evaluation's), a row per evaluation, ``best`` replaced only on improvement (W, then R),
     and the comparison survives a resume through checkpoint metadata."""
-    from hybridmarl.algos.hybrid.train import HybridConfig
+    from hybridmarl.algos.hybrid import HybridConfig
     from hybridmarl.training.config import (
         FINAL_EVAL_SEED,
         SELECT_EVAL_SEED,
@@ -223,7 +222,7 @@ def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
     assert SELECT_EVAL_SEED != FINAL_EVAL_SEED
     assert selection_key({"W": 0.5, "R": 0.1}) > selection_key({"W": 0.5, "R": 0.0}) > selection_key({"W": 0.4, "R": 0.9})
     assert selection_key({"failure_rate": 0.2, "R": -5.0}) > selection_key({"failure_rate": 0.3, "R": 0.0})
-    cfg = HybridConfig(eval_every=10)
+    cfg = HybridConfig().replace(eval_every=10)
     log = RunLogger(tmp_path, tensorboard=False)
     scores = iter([(0.2, 0.0), (0.5, -0.1), (0.5, -0.2), (0.5, 0.3)])
     seeds: list[int] = []
@@ -253,54 +252,56 @@ def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
         rows = list(csv.DictReader(f))
     assert [(int(r["episodes"]), int(r["best"])) for r in rows] == [(10, 1), (24, 1), (31, 0), (40, 1)]
     # --no-keep-best: evaluations are logged, nothing is saved.
-    off = PeriodicEval(HybridConfig(eval_every=10, keep_best=False), tmp_path / "off", RunLogger(tmp_path / "off", tensorboard=False), 0)
+    off = PeriodicEval(HybridConfig().replace(eval_every=10, keep_best=False), tmp_path / "off", RunLogger(tmp_path / "off", tensorboard=False), 0)
     scores = iter([(0.9, 0.0)])
     off.maybe_run(10, evaluate, actor_arrays(10), {})
     assert off.meta() == {} and not (tmp_path / "off" / "checkpoints").exists()
 
 
-@pytest.mark.parametrize("actor_buffer", [0, 64])
-def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
+@pytest.mark.parametrize("average", [False, True])
+def test_exact_resume(tj_dataset, tmp_path, average):
     """N episodes straight == N/2 episodes, stop, --resume, N/2 more (CPU): identical state.
-    (The demonstrator is a dataset, i.e. its behavioural clone, as in test_algos_cli.) With
-    ``actor_buffer`` the actor learns between chunks from the buffer of Alg. 1 labels, which the
-    checkpoint must carry too."""
-    from hybridmarl.algos.hybrid.train import PRESETS, train
+    (The demonstrator is a dataset, i.e. its behavioural clone, as in test_algos_cli.) Without
+    the weight average the periodic evaluation and its best policy resume too; with it (and the
+    cross-entropy actor target) the average is checkpointed, resumed and exported."""
+    from hybridmarl.algos.hybrid import PRESETS, train
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
     from hybridmarl.training.evaluate import load_policy
+    from hybridmarl.training.run import TrainResult
 
     data = D.save_dataset(tj_dataset, tmp_path / "tj.safetensors")
-    base = dataclasses.replace(
-        PRESETS["toy"]("traffic_junction"), demonstrator=str(data), progress=False, checkpoint_every=4,
-        actor_buffer=actor_buffer, actor_target="best" if actor_buffer else "advantage",
-        eval_every=0 if actor_buffer else 3,  # periodic evaluation and the best policy resume too
-        actor_average_from=2 if actor_buffer else None,  # and so does the actor's weight average
+    base = PRESETS["toy"]("traffic_junction").replace(
+        demonstrator=str(data), progress=False, checkpoint_every=4,
+        actor_target="best" if average else "advantage",
+        eval_every=0 if average else 3,  # periodic evaluation and the best policy resume too
+        actor_average_from=2 if average else None,  # and so does the actor's weight average
     )
-    assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "straight"))) == 0
-    assert train(dataclasses.replace(base, total_episodes=4, run_dir=str(tmp_path / "split"))) == 0
+    res = train(base.replace(total_episodes=8, run_dir=str(tmp_path / "straight")))
+    assert isinstance(res, TrainResult) and res.run_dir == tmp_path / "straight"
+    assert res.evaluation == json.loads((tmp_path / "straight" / "eval.json").read_text())
+    train(base.replace(total_episodes=4, run_dir=str(tmp_path / "split")))
     _, m4 = load_checkpoint(latest_checkpoint(tmp_path / "split"))
-    assert train(dataclasses.replace(base, total_episodes=8, run_dir=str(tmp_path / "split"), resume=True)) == 0
+    train(base.replace(total_episodes=8, run_dir=str(tmp_path / "split"), resume=True))
     a, ma = load_checkpoint(latest_checkpoint(tmp_path / "straight"))
     b, mb = load_checkpoint(latest_checkpoint(tmp_path / "split"))
     assert ma["episodes"] == mb["episodes"] == 8 and ma["critic_updates"] == mb["critic_updates"] == 2
     assert set(a) == set(b)
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
-    if actor_buffer:
-        assert int(a["labels.size"]) > 0 and a["labels.obs"].shape[0] == actor_buffer
+    if average:
         # The weight average is checkpointed, resumed exactly, and is what the run exports.
         assert mb["average_count"] >= 2 and "actor_average.params.Dense_0.kernel" in b
         assert not np.array_equal(b["actor_average.params.Dense_0.kernel"], b["actor.params.Dense_0.kernel"])
         pol = load_policy(tmp_path / "split")
         np.testing.assert_array_equal(pol.variables["params"]["Dense_0"]["kernel"], b["actor_average.params.Dense_0.kernel"])
-        last = load_policy(tmp_path / "split", policy="last")  # ``hybridmarl eval --policy last``
+        last = load_policy(tmp_path / "split", weights="last")  # 'hybridmarl eval --policy last'
         assert (pol.weights, last.weights) == ("average", "last")
         np.testing.assert_array_equal(last.variables["params"]["Dense_0"]["kernel"], b["actor.params.Dense_0.kernel"])
         final = json.loads((tmp_path / "straight" / "eval.json").read_text())
         assert final["average_of"] == mb["average_count"] and "failure_rate" in final["last_actor"]
     else:
         with pytest.raises(C.CheckpointError, match="no weight average"):
-            load_policy(tmp_path / "split", policy="average")
+            load_policy(tmp_path / "split", weights="average")
         straight, split = (C.find_checkpoint(tmp_path / r, "best") for r in ("straight", "split"))
         (ba, bma), (bb, bmb) = C.load_checkpoint(straight), C.load_checkpoint(split)
         assert bma["episodes"] == bmb["episodes"] and set(ba) == set(bb) and all(k.startswith("actor.") for k in ba)
@@ -322,13 +323,13 @@ def test_exact_resume(tj_dataset, tmp_path, actor_buffer):
     from hybridmarl.training.task import TaskError
 
     with pytest.raises(TaskError, match="--resume"):
-        train(dataclasses.replace(base, run_dir=str(tmp_path / "split")))
+        train(base.replace(run_dir=str(tmp_path / "split")))
 
 
 def test_tj_time_penalty_reaches_the_task_and_costs_tau_per_car():
-    from hybridmarl.algos.hybrid.train import HybridConfig
+    from hybridmarl.algos.hybrid import HybridConfig
 
-    spec = HybridConfig(env="traffic_junction", time_penalty=True).task_spec()
+    spec = HybridConfig().replace(env="traffic_junction", time_penalty=True).task_spec()
     assert spec.time_penalty and "time penalty" in spec.label()
     assert TaskSpec.from_dict({"env": "traffic_junction"}).time_penalty is False  # older run metadata
     on, off = make_task(spec), make_task(TJ)
@@ -359,13 +360,11 @@ def test_tj_replay_reports_the_time_penalty():
 def test_time_limit_stops_alg2_and_still_evaluates(tmp_path, capsys):
     """``time_limit_min``: Alg. 2 stops at the first chunk boundary past the limit; the run is
     then checkpointed and evaluated as usual, and ``eval.json`` says the clock stopped it."""
-    from hybridmarl.algos.hybrid.train import PRESETS, train
+    from hybridmarl.algos.hybrid import PRESETS, train
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
 
-    cfg = dataclasses.replace(
-        PRESETS["toy"]("traffic_junction"), progress=False, total_episodes=10_000, time_limit_min=1e-6, run_dir=str(tmp_path / "run"),
-    )
-    assert train(cfg) == 0
+    cfg = PRESETS["toy"]("traffic_junction").replace(progress=False, total_episodes=10_000, time_limit_min=1e-6, run_dir=str(tmp_path / "run"))
+    train(cfg)
     assert "time limit of 1e-06 min reached" in capsys.readouterr().out
     _, meta = load_checkpoint(latest_checkpoint(tmp_path / "run"))
     assert meta["episodes"] < 10_000 and meta["iterations"] == 1  # one chunk of Alg. 2

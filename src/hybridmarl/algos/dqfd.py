@@ -1,25 +1,25 @@
 """DQfD, Deep Q-learning from Demonstrations (Hester et al., AAAI 2018; the paper's baseline of
-Section 5.2, reference §2), as independent learners sharing one Q network.
+Section 5.2; docs/baselines.md), as independent learners sharing one Q network.
 
-    Phase 1  demonstrations: a dataset file, or ``demo_observations`` recorded from the script;
+    Phase 1  demonstrations: a dataset file, or 'demo_observations' recorded from the script;
              every record is re-simulated once to get its next state and the per-agent rewards
-             (``algos.rewards``, Section 5.2: "DQfD and OGTL need rewards of single-agent
+             (per-agent rewards, docs/baselines.md, Section 5.2: "DQfD and OGTL need rewards of single-agent
              action, which is same to [Hu et al., 2018]"). They fill a protected region of the
              replay buffer that is never overwritten;
-    Phase 2  pre-training on the demonstrations only (``pretrain_updates`` minibatch updates of
+    Phase 2  pre-training on the demonstrations only ('pretrain_updates' minibatch updates of
              the full loss J(Q) below);
-    Phase 3  interaction: ``num_envs`` games, every agent plays ε-greedy on the shared Q
+    Phase 3  interaction: 'num_envs' games, every agent plays ε-greedy on the shared Q
              network (legal actions only); finished episodes go into the agent region of the
-             buffer (FIFO); one update every ``train_every`` env steps on minibatches drawn by
+             buffer (FIFO); one update every 'train_every' env steps on minibatches drawn by
              proportional prioritised replay from demonstrations and agent data together; the
-             target network is copied every ``target_update_every`` updates;
-    Phase 4  evaluation (``algos.evaluate``: legal argmax of Q, W and R with 95% CIs).
+             target network is copied every 'target_update_every' updates;
+    Phase 4  evaluation (Section 5.1: legal argmax of Q, W and R with 95% CIs).
 
 The Q network has the actor's architecture (Section 5.1, "re-implemented by the same setting and
-network architecture") with |A| outputs, read as Q-values; it is saved as ``actor.*`` so
-``hybridmarl eval`` plays its legal argmax, which is the greedy policy.
+network architecture") with |A| outputs, read as Q-values; it is saved as 'actor.*' so
+'hybridmarl eval' plays its legal argmax, which is the greedy policy.
 
-Loss (reference §2), per sampled agent-transition ``(s, i, a, r_i, s')``, ``o = O^i(s)``::
+Loss (Hester et al. 2018), per sampled agent-transition '(s, i, a, r_i, s')', 'o = O^i(s)'::
 
     J(Q) = J_DQ + λ1 J_n + λ2 J_E + λ3 J_L2
     J_DQ = huber(r_i + γ' Q_tgt(o', argmax_{a' legal} Q(o', a')) - Q(o, a))      (double DQN)
@@ -29,22 +29,22 @@ Loss (reference §2), per sampled agent-transition ``(s, i, a, r_i, s')``, ``o =
 
 weighted by the importance-sampling weights of prioritised replay. An agent's own episode ends
 when its unit dies (or the car leaves) or the game ends: no bootstrap past that. The TD error is
-Huber-clipped as in DQN (the reference names no form). Rewards are not log-scaled (the Atari
-``sign(r) log(1 + |r|)`` of the reference): the per-agent rewards are already normalised.
+Huber-clipped as in DQN (Hester et al. name no form). Rewards are not log-scaled (the Atari
+'sign(r) log(1 + |r|)' of Hester et al.): the per-agent rewards are already normalised.
 
 Prioritised replay (proportional, Schaul et al. 2016 with DQfD's settings): priority
-``p = (|δ_1| + ε)^α``, ``δ_1`` the 1-step TD error (the reference leaves open which error sets it;
-priorities are also updated during pre-training), ``ε_a = 0.001`` for agent data, ``ε_d = 1.0``
-for demonstrations, ``α = 0.4``, IS exponent ``β`` annealed linearly from 0.6 to 1 over the
+'p = (|δ_1| + ε)^α', 'δ_1' the 1-step TD error (Hester et al. leave open which error sets it;
+priorities are also updated during pre-training), 'ε_a = 0.001' for agent data, 'ε_d = 1.0'
+for demonstrations, 'α = 0.4', IS exponent 'β' annealed linearly from 0.6 to 1 over the
 interaction phase (weights normalised by the largest possible weight). New transitions get the
-largest priority seen so far. The buffer is host numpy: each block of ``updates_per_call``
+largest priority seen so far. The buffer is host numpy: each block of 'updates_per_call'
 minibatches is drawn with one cumulative sum over all (row, agent) priorities (O(size) per block,
-fine at these sizes), trained in one compiled ``lax.scan``, and the priorities of the block are
-then updated (so within a block they are up to ``updates_per_call - 1`` updates stale). Rows hold
+fine at these sizes), trained in one compiled 'lax.scan', and the priorities of the block are
+then updated (so within a block they are up to 'updates_per_call - 1' updates stale). Rows hold
 the joint state and the next state (small integer pytrees); observations and legal masks are
 recomputed from them on the device.
 
-OGTL (``algos.ogtl``) reuses all of this with different switches (no demonstrations after its
+OGTL ('algos.ogtl') reuses all of this with different switches (no demonstrations after its
 imitation stage, no margin loss during RL).
 """
 
@@ -55,33 +55,16 @@ import functools
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tyro.conf import OmitArgPrefixes
 
-from hybridmarl.io import write_json_atomic
 from hybridmarl.training import networks as nets
-from hybridmarl.training.checkpoint import (
-    latest_checkpoint,
-    load_checkpoint,
-    prefixed,
-    save_checkpoint,
-    subtree,
-)
-from hybridmarl.training.config import (
-    FINAL_EVAL_SEED,
-    PeriodicEval,
-    RunClock,
-    TrainConfig,
-    TrainingDiverged,
-    check_finite,
-    config_to_dict,
-    key_data,
-    key_of,
-    resolve_run_dir,
-)
+from hybridmarl.training.checkpoint import prefixed
+from hybridmarl.training.config import Options, TrainConfig, check_finite, key_data
 from hybridmarl.training.losses import (
     double_q_bootstrap,
     huber,
@@ -90,105 +73,156 @@ from hybridmarl.training.losses import (
     nstep_returns,
 )
 from hybridmarl.training.rollout import EpisodeAssembler, Pool, new_pool, pool_steps
-from hybridmarl.training.task import Task, TaskError, flatten_named, make_task, unflatten_named
+from hybridmarl.training.run import Run, RunState, TrainResult
+from hybridmarl.training.task import Task, TaskError, flatten_named, unflatten_named
 
 ALGO = "dqfd"
 
 
 @dataclass(frozen=True)
-class DQfDConfig(TrainConfig):
-    """DQfD: pre-training on demonstrations, then prioritised replay of demonstrations and own
-    data with TD, n-step TD, large-margin and L2 losses (reference §2)."""
+class DQfDBudgetOptions(Options):
+    """Budget and parallelism of the interaction phase."""
+
+    RUN_ONLY = frozenset({"total_episodes"})
 
     total_episodes: int = 20_000
-    """Interaction episodes (the paper does not state its budget; as ``hybrid``)."""
+    """Interaction episodes (the paper does not state its budget; as 'hybrid')."""
     num_envs: int = 16
     """Games played in parallel during interaction (not in the paper)."""
     chunk_steps: int = 8
     """Env steps per compiled call; buffer, updates and logs happen in between."""
-    gamma: float = 0.995
-    """Discount (Section 5.1: λ = 0.995; the baselines use "the same setting", Section 5.2)."""
+
+
+@dataclass(frozen=True)
+class DemoOptions(Options):
+    """Phases 1-2: the demonstrations and the pre-training on them."""
+
     demo_observations: int = 10_000
     """Demonstration observations recorded from a script demonstrator (Section 5.1: 10,000)."""
     pretrain_updates: int = 50_000
-    """Minibatch updates on demonstrations only before interacting (reference §2: 750,000 on
-    Atari, "10-50k is reasonable" for these tasks)."""
+    """Minibatch updates on demonstrations only before interacting (Hester et al. 2018: 750,000
+    on Atari; these tasks are far smaller, not given in the paper)."""
     pretrain_td: bool = True
-    """Pre-train with the TD terms too (DQfD: the full loss, reference §2). False: the
+    """Pre-train with the TD terms too (DQfD: the full loss, Hester et al. 2018). False: the
     large-margin loss only (pure imitation)."""
     keep_demos: bool = True
-    """Keep the demonstrations in the buffer during interaction (DQfD: yes, reference §2)."""
-    lambda_nstep: float = 1.0
-    """λ1, weight of the n-step TD loss (reference §2: 1.0)."""
-    lambda_margin: float = 1.0
-    """λ2, weight of the large-margin loss on demonstration samples (reference §2: 1.0)."""
-    lambda_margin_online: float | None = None
-    """λ2 during interaction (default: ``lambda_margin``; OGTL: 0)."""
-    lambda_l2: float = 1e-5
-    """λ3, weight of the L2 penalty on the weights (reference §2: 1e-5)."""
-    margin: float = 0.8
-    """Margin l(a_E, a) for a != a_E (reference §2: 0.8)."""
+    """Keep the demonstrations in the buffer during interaction (DQfD: yes, Hester et al. 2018)."""
+
+
+@dataclass(frozen=True)
+class LossOptions(Options):
+    """The loss J(Q) = J_DQ + λ1 J_n + λ2 J_E + λ3 J_L2 (Hester et al. 2018)."""
+
+    gamma: float = 0.995
+    """Discount (Section 5.1: λ = 0.995; the baselines use "the same setting", Section 5.2)."""
     n_step: int = 10
-    """n of the n-step return (reference §2: 10)."""
+    """n of the n-step return (Hester et al. 2018: 10)."""
+    lambda_nstep: float = 1.0
+    """λ1, weight of the n-step TD loss (Hester et al. 2018: 1.0)."""
+    lambda_margin: float = 1.0
+    """λ2, weight of the large-margin loss on demonstration samples (Hester et al. 2018: 1.0)."""
+    lambda_margin_online: float | None = None
+    """λ2 during interaction (default: lambda_margin; OGTL: 0)."""
+    lambda_l2: float = 1e-5
+    """λ3, weight of the L2 penalty on the weights (Hester et al. 2018: 1e-5)."""
+    margin: float = 0.8
+    """Margin l(a_E, a) for a != a_E (Hester et al. 2018: 0.8)."""
+
+
+@dataclass(frozen=True)
+class ReplayOptions(Options):
+    """Prioritised replay, update schedule and target network."""
+
     batch_size: int = 32
-    """Agent-transitions per minibatch (reference §2: 32)."""
+    """Agent-transitions per minibatch (Hester et al. 2018: 32)."""
     train_every: int = 4
     """One update every this many env steps (joint steps summed over the parallel games;
-    reference §2: every 4 steps on Atari)."""
+    Hester et al. 2018: every 4 steps on Atari)."""
     updates_per_call: int = 8
     """Minibatches per compiled update call (priorities are refreshed after each call)."""
     target_update_every: int = 10_000
-    """Copy the online network to the target network every this many updates (reference §2:
-    C = 10,000)."""
+    """Copy the online network to the target network every this many updates (Hester et al.
+    2018: C = 10,000)."""
     buffer_size: int = 50_000
-    """Joint steps (rows) of agent data kept, FIFO, besides the demonstrations (reference §2: 10^6
-    transitions; a row holds one transition per agent)."""
+    """Joint steps (rows) of agent data kept, FIFO, besides the demonstrations (Hester et al.
+    2018: 10^6 transitions; a row holds one transition per agent)."""
     per_alpha: float = 0.4
-    """Prioritised replay exponent α (reference §2: 0.4; 0 = uniform replay)."""
+    """Prioritised replay exponent α (Hester et al. 2018: 0.4; 0 = uniform replay)."""
     per_beta0: float = 0.6
-    """Importance-sampling exponent β at the start of interaction, annealed to 1 (reference §2)."""
+    """Importance-sampling exponent β at the start of interaction, annealed to 1 (Hester et al.
+    2018)."""
     per_eps_agent: float = 0.001
-    """ε_a, priority bonus of agent transitions (reference §2: 0.001)."""
+    """ε_a, priority bonus of agent transitions (Hester et al. 2018: 0.001)."""
     per_eps_demo: float = 1.0
-    """ε_d, priority bonus of demonstration transitions (reference §2: 1.0)."""
+    """ε_d, priority bonus of demonstration transitions (Hester et al. 2018: 1.0)."""
+
+
+@dataclass(frozen=True)
+class ExplorationOptions(Options):
+    """ε-greedy exploration during interaction (legal actions only)."""
+
     eps_start: float = 0.01
-    """ε-greedy exploration at the start of interaction (reference §2: 0.01)."""
+    """ε at the start of interaction (Hester et al. 2018: 0.01)."""
     eps_end: float = 0.01
-    """ε-greedy exploration after ``eps_decay_episodes`` (reference §2: 0.01)."""
+    """ε after eps_decay_episodes (Hester et al. 2018: 0.01)."""
     eps_decay_episodes: int = 0
-    """Episodes of linear decay from ``eps_start`` to ``eps_end`` (0: none)."""
+    """Episodes of linear decay from eps_start to eps_end (0: none)."""
+
+
+@dataclass(frozen=True)
+class QNetworkOptions(Options):
+    """The Q network (the actor's architecture, Section 5.1) and its optimisation."""
+
     optimizer: Literal["sgd", "adam"] = "sgd"
     """Optimiser (Section 5.1: SGD for all networks; "the same setting", Section 5.2)."""
     lr: float = 1e-3
     """Learning rate (Section 5.1: 10^-3)."""
-    momentum: float = 0.0
-    """SGD momentum (0: plain SGD)."""
     actor_hidden: tuple[int, ...] = nets.ACTOR_HIDDEN
     """Q network FC widths before the |A| outputs (the actor's, Section 5.1: 512, 256, 256)."""
 
 
+@dataclass(frozen=True)
+class DQfDConfig(TrainConfig):
+    """DQfD: pre-training on demonstrations, then prioritised replay of demonstrations and own
+    data with TD, n-step TD, large-margin and L2 losses (Hester et al. 2018)."""
+
+    budget: OmitArgPrefixes[DQfDBudgetOptions] = dataclasses.field(default_factory=DQfDBudgetOptions)
+    demos: OmitArgPrefixes[DemoOptions] = dataclasses.field(default_factory=DemoOptions)
+    loss: OmitArgPrefixes[LossOptions] = dataclasses.field(default_factory=LossOptions)
+    replay: OmitArgPrefixes[ReplayOptions] = dataclasses.field(default_factory=ReplayOptions)
+    exploration: OmitArgPrefixes[ExplorationOptions] = dataclasses.field(default_factory=ExplorationOptions)
+    q_network: OmitArgPrefixes[QNetworkOptions] = dataclasses.field(default_factory=QNetworkOptions)
+
+
 def _paper(env: str) -> DQfDConfig:
-    return DQfDConfig(env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest")
+    """'paper': DQfD with the settings of Hester et al. (AAAI 2018) where they carry over
+    (docs/baselines.md) and the paper's shared ones (Section 5.1: SGD, 10^-3, λ = 0.995); 20,000
+    episodes (the paper gives no budget)."""
+    return DQfDConfig().replace(env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest")
 
 
 def _quick(env: str) -> DQfDConfig:
-    """Minutes on a CPU: fewer pre-training updates and episodes, Adam, a faster target."""
-    return dataclasses.replace(
-        _paper(env), total_episodes=600, pretrain_updates=3_000, optimizer="adam", lr=3e-4, batch_size=64,
+    """'quick', minutes on a CPU: 600 episodes, 3,000 pre-training updates, Adam, a faster target."""
+    return _paper(env).replace(
+        total_episodes=600, pretrain_updates=3_000, optimizer="adam", lr=3e-4, batch_size=64,
         updates_per_call=16, target_update_every=500, buffer_size=20_000, checkpoint_every=200,
     )
 
 
 def _toy(env: str) -> DQfDConfig:
-    """Seconds: a smoke test of the whole pipeline (tests, CI). Tiny network, no learning."""
-    return dataclasses.replace(
-        _quick(env), total_episodes=4, num_envs=4, chunk_steps=8, demo_observations=64, pretrain_updates=8,
+    """'toy', seconds: a smoke test of the whole pipeline (tests, CI): 4 episodes, a tiny network,
+    no learning."""
+    return _quick(env).replace(
+        total_episodes=4, num_envs=4, chunk_steps=8, demo_observations=64, pretrain_updates=8,
         batch_size=16, updates_per_call=4, target_update_every=8, buffer_size=256, actor_hidden=(16, 16, 16),
         checkpoint_every=2, eval_episodes=8, tensorboard=False,
     )
 
 
+#: Preset name -> '(env) -> DQfDConfig' ('--preset').
 PRESETS = {"paper": _paper, "quick": _quick, "toy": _toy}
+#: The config class of '--algo dqfd'.
+CONFIG = DQfDConfig
 
 
 # -- prioritised replay ---------------------------------------------------------------------------------
@@ -197,12 +231,12 @@ PRESETS = {"paper": _paper, "quick": _quick, "toy": _toy}
 class PrioritizedReplay:
     """Rows of joint steps with per-agent transitions; demonstrations in a protected region.
 
-    Row ``r`` holds ``s_t`` and ``s_{t+1}`` (flattened state arrays), the agents' actions and,
-    per agent, the reward, the 1-step discount ``γ·(1 - end)``, the n-step return and discount and
-    ``nidx`` (the row whose next state bootstraps the n-step target), ``valid`` (the agent is in
-    play at ``s_t``) and the priority ``p^α``. Rows ``[0, demo_size)`` are the demonstrations
-    (never overwritten); agent rows live in ``[demo_cap, demo_cap + capacity)``, FIFO. A row's
-    ``nidx`` points at a row inserted with it (same episode, later), so FIFO overwriting never
+    Row 'r' holds 's_t' and 's_{t+1}' (flattened state arrays), the agents' actions and,
+    per agent, the reward, the 1-step discount 'γ·(1 - end)', the n-step return and discount and
+    'nidx' (the row whose next state bootstraps the n-step target), 'valid' (the agent is in
+    play at 's_t') and the priority 'p^α'. Rows '[0, demo_size)' are the demonstrations
+    (never overwritten); agent rows live in '[demo_cap, demo_cap + capacity)', FIFO. A row's
+    'nidx' points at a row inserted with it (same episode, later), so FIFO overwriting never
     leaves a live row pointing at a replaced one.
     """
 
@@ -224,8 +258,8 @@ class PrioritizedReplay:
         self.max_prio = 1.0
 
     def add(self, rows: dict[str, np.ndarray], done: np.ndarray, segment: np.ndarray, gamma: float, n_step: int, *, demo: bool = False) -> None:
-        """Insert rows (consecutive within ``segment``; ``state.*``, ``next.*``, ``actions``,
-        ``agent_reward``, ``active``, ``active_next``) and their targets' ingredients."""
+        """Insert rows (consecutive within 'segment'; 'state.*', 'next.*', 'actions',
+        'agent_reward', 'active', 'active_next') and their targets' ingredients."""
         m = int(done.shape[0])
         if m == 0:
             return
@@ -271,8 +305,8 @@ class PrioritizedReplay:
         return rows[:, None] & self.cols["valid"]
 
     def sample(self, rng: np.random.Generator, count: int, beta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``count`` agent-transitions with probability ``p_i / sum p`` (``p`` already ``^α``):
-        (rows, agents, importance weights ``(M P(i))^-β / max``)."""
+        """'count' agent-transitions with probability 'p_i / sum p' ('p' already '^α'):
+        (rows, agents, importance weights '(M P(i))^-β / max')."""
         p = np.where(self.live_mask(), self.cols["prio"], 0.0).ravel()
         cdf = np.cumsum(p)
         total = float(cdf[-1]) if cdf.size else 0.0
@@ -294,7 +328,7 @@ class PrioritizedReplay:
         self.max_prio = max(self.max_prio, float(p.max()) if p.size else 0.0)
 
     def batch(self, rows: np.ndarray, agents: np.ndarray, weights: np.ndarray) -> dict[str, Any]:
-        """Host arrays of a sample (leading shape of ``rows``) for the compiled update."""
+        """Host arrays of a sample (leading shape of 'rows') for the compiled update."""
         bidx: np.ndarray = np.asarray(self.cols["nidx"][rows, agents], np.int64)
         shape = rows.shape
         nb = len(shape)
@@ -332,21 +366,21 @@ class PrioritizedReplay:
 class QLearner:
     """The Q network, its optimiser and the jitted functions of one (task, static settings)."""
 
-    def __init__(self, task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> None:
+    def __init__(self, task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> None:
         self.task = task
         self.demo_policy = task.demonstrator(demo_script) if demo_script else None
         if agreement and self.demo_policy is None:
             raise TaskError("the agreement bonus (OGTL's reward shaping) needs a script demonstrator, not a dataset")
         self.agreement = agreement
         self.module = nets.actor_module(task.num_actions, hidden)
-        self.tx = nets.make_optimizer(optimizer, lr, momentum)
+        self.tx = nets.make_optimizer(optimizer, lr)
         self.b = num_envs
         self.collect_chunk = jax.jit(functools.partial(self._collect_chunk, steps=chunk_steps))
         self.update_block = jax.jit(self._update_block)
         self.resimulate = jax.jit(jax.vmap(self._transition))
 
     def _transition(self, state: Any, actions: jax.Array, next_state: Any, done: jax.Array, info: dict) -> dict:
-        """What a buffer row needs from one step ``state -> next_state``."""
+        """What a buffer row needs from one step 'state -> next_state'."""
         task = self.task
         row = {
             "next": next_state,
@@ -358,8 +392,8 @@ class QLearner:
         }
         if self.agreement and self.demo_policy is not None:
             # 1 where an agent with a choice played what the script plays in the same state
-            # (OGTL's optional shaping, reference §3). The scripts are deterministic; the fixed
-            # key only matters for an ``:eps`` demonstrator.
+            # (OGTL's optional shaping, Hester et al. 2018). The scripts are deterministic; the fixed
+            # key only matters for an ':eps' demonstrator.
             scripted = self.demo_policy(jax.random.key(0), state)
             choice = jnp.sum(task.avail(state), axis=-1) >= 2
             row["agrees"] = ((actions == scripted) & choice & row["active"]).astype(jnp.float32)
@@ -370,8 +404,8 @@ class QLearner:
         return jax.vmap(self._transition)(states, actions, next_states, done, info)
 
     def _collect_chunk(self, pool: Pool, q_vars: Any, eps: jax.Array, use_script: jax.Array, *, steps: int):
-        """``steps`` steps of ε-greedy play of the shared Q network (legal actions only), or of
-        the demonstrator script where ``use_script`` (one compiled function for both, so
+        """'steps' steps of ε-greedy play of the shared Q network (legal actions only), or of
+        the demonstrator script where 'use_script' (one compiled function for both, so
         recording demonstrations costs no extra compilation)."""
         mod, demo = self.module, self.demo_policy
 
@@ -396,8 +430,8 @@ class QLearner:
         return obs[i, agent], legal[i, agent]
 
     def _update_block(self, q: nets.NetState, target_vars: Any, batch: dict, coeffs: jax.Array):
-        """``K`` minibatch updates (batch leaves ``[K, B, ...]``); ``coeffs`` = (λ_DQ, λ1, λ2, λ3,
-        margin). Returns the network, |δ_1| ``[K, B]`` and the mean loss terms."""
+        """'K' minibatch updates (batch leaves '[K, B, ...]'); 'coeffs' = (λ_DQ, λ1, λ2, λ3,
+        margin). Returns the network, |δ_1| '[K, B]' and the mean loss terms."""
         mod, tx = self.module, self.tx
 
         def one(q: nets.NetState, mb: dict):
@@ -429,8 +463,9 @@ class QLearner:
 
 
 @functools.lru_cache(maxsize=8)
-def build_learner(task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, momentum: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> QLearner:
-    return QLearner(task, hidden, optimizer, lr, momentum, num_envs, chunk_steps, demo_script, agreement)
+def build_learner(task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> QLearner:
+    """The learner, compiled once per distinct argument list (the arguments are the compile key)."""
+    return QLearner(task, hidden, optimizer, lr, num_envs, chunk_steps, demo_script, agreement)
 
 
 LOSS_NAMES = ("loss", "td_loss", "nstep_loss", "margin_loss", "l2")
@@ -440,8 +475,8 @@ LOSS_NAMES = ("loss", "td_loss", "nstep_loss", "margin_loss", "l2")
 
 
 def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, float]:
-    """Re-simulate every record of a dataset once (``step(s_t, a_t)``) for its next state,
-    per-agent rewards and ``done``; returns (rows, done, segment, fraction of records whose
+    """Re-simulate every record of a dataset once ('step(s_t, a_t)') for its next state,
+    per-agent rewards and 'done'; returns (rows, done, segment, fraction of records whose
     recorded global reward the re-simulation reproduces)."""
     from hybridmarl.training.demos import state_at
 
@@ -479,7 +514,7 @@ def _step_batch(task: Task):
 
 
 def online_rows(out: dict, asm: EpisodeAssembler) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-    """Finished episodes of a ``collect_chunk`` block: (rows, done, segment, episode metrics)."""
+    """Finished episodes of a 'collect_chunk' block: (rows, done, segment, episode metrics)."""
     step = jax.device_get(out["step"])
     fields = {"state." + k: v for k, v in flatten_named(jax.device_get(out["state"])).items()}
     fields.update({"next." + k: v for k, v in flatten_named(step.pop("next")).items()})
@@ -491,8 +526,8 @@ def online_rows(out: dict, asm: EpisodeAssembler) -> tuple[dict[str, np.ndarray]
 
 
 def record_demos(learner: QLearner, pool: Pool, q_vars: Any, count: int, gamma: float) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, float]]:
-    """Play the demonstrator script from random start states until ``count`` records of finished
-    episodes are in (the last episode is cut at ``count``, like ``demos.collect``)."""
+    """Play the demonstrator script from random start states until 'count' records of finished
+    episodes are in (the last episode is cut at 'count', like 'demos.collect')."""
     asm = EpisodeAssembler(learner.b, gamma)
     parts: list[tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]] = []
     stats_all: dict[str, list[float]] = {}
@@ -513,159 +548,87 @@ def record_demos(learner: QLearner, pool: Pool, q_vars: Any, count: int, gamma: 
 # -- the run ----------------------------------------------------------------------------------------------
 
 
-@dataclass
-class RunState:
-    """Everything a checkpoint holds."""
+@dataclass(kw_only=True)
+class DQfDState(RunState):
+    """Everything a checkpoint holds: the Q network, its target, the buffer and the counters."""
 
     q: nets.NetState
     target: Any
-    pool: Pool
-    key: jax.Array
     buffer: PrioritizedReplay
-    assembler: EpisodeAssembler
-    phase: str = "pretrain"  # "pretrain" -> "online"
-    episodes: int = 0
-    env_steps: int = 0
     updates: int = 0
     pretrain_done: int = 0
     update_credit: float = 0.0
     next_target: int = 0
-    demo_stats: dict[str, float] = dataclasses.field(default_factory=dict)
-    history: dict[str, list[float]] = dataclasses.field(default_factory=dict)
 
-    COUNTERS = ("phase", "episodes", "env_steps", "updates", "pretrain_done", "update_credit", "next_target", "demo_stats")
-
-    def next_key(self) -> jax.Array:
-        k, sub = jax.random.split(key_of(self.key))
-        self.key = key_data(k)
-        return sub
+    TREES: ClassVar[dict[str, str]] = {"actor": "q", "target": "target"}
+    BUFFERS: ClassVar[dict[str, str]] = {"buffer": "buffer"}
+    COUNTERS: ClassVar[tuple[str, ...]] = (*RunState.COUNTERS, "updates", "pretrain_done", "update_credit", "next_target")
 
     def rng(self) -> np.random.Generator:
         return np.random.default_rng(np.asarray(jax.random.key_data(self.next_key())).astype(np.uint64))
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        out: dict[str, np.ndarray] = {}
-        out.update(prefixed(flatten_named(self.q), "actor"))
-        out.update(prefixed(flatten_named(self.target), "target"))
-        out.update(prefixed(flatten_named(self.pool), "pool"))
-        out["key"] = np.asarray(self.key)
-        out.update(prefixed(self.buffer.to_arrays(), "buffer"))
-        out.update(prefixed(self.assembler.to_arrays(), "asm"))
-        for k, v in self.history.items():
-            out[f"history.{k}"] = np.asarray(v, np.float32)
-        return out
-
-    def meta(self) -> dict[str, Any]:
-        return {k: getattr(self, k) for k in self.COUNTERS}
-
-    def restore(self, arrays: dict[str, np.ndarray], meta: dict[str, Any]) -> None:
-        self.q = unflatten_named(self.q, subtree(arrays, "actor"))
-        self.target = unflatten_named(self.target, subtree(arrays, "target"))
-        self.pool = unflatten_named(self.pool, subtree(arrays, "pool"))
-        self.key = jnp.asarray(arrays["key"])
-        self.buffer.load_arrays(subtree(arrays, "buffer"))
-        self.assembler.load_arrays(subtree(arrays, "asm"))
-        self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
-        for k in self.COUNTERS:
-            setattr(self, k, meta[k])
 
 
 def _variables(q: nets.NetState) -> dict:
     return {"params": q.params, "batch_stats": q.batch_stats}
 
 
-def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | None = None) -> int:
-    """The whole run (``algo`` names it: ``dqfd``, or ``ogtl`` with OGTL's switches).
+def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | None = None) -> TrainResult:
+    """The whole run ('algo' names it: 'dqfd', or 'ogtl' with OGTL's switches). Raises a
+    'UserError' for bad input and 'TrainingDiverged' when a loss or parameter becomes NaN/inf.
 
-    ``shaping(episodes) -> w``: in the interaction phase every agent's reward gets ``w`` added
-    where it played the demonstrator script's action (OGTL's optional agreement bonus; ``w`` is
+    'shaping(episodes) -> w': in the interaction phase every agent's reward gets 'w' added
+    where it played the demonstrator script's action (OGTL's optional agreement bonus; 'w' is
     taken when the transitions enter the buffer). None: no bonus and nothing computed for it."""
     from hybridmarl.training import demos as D
-    from hybridmarl.training import evaluate as E
-    from hybridmarl.training import plots
-    from hybridmarl.training.logger import Progress, RunLogger, recent_status
 
-    clock = RunClock()
-    spec = cfg.task_spec()
-    task = make_task(spec)
-    run_dir = resolve_run_dir(algo, cfg)
-    ckpt = latest_checkpoint(run_dir)
-    if ckpt is not None and not cfg.resume:
-        raise TaskError(f"{run_dir} already holds checkpoints: pass --resume to continue it, or choose another --run-dir")
-    log = RunLogger(run_dir, tensorboard=cfg.tensorboard)
-    dataset = cfg.demonstrator_is_dataset()
-    learner = build_learner(task, tuple(cfg.actor_hidden), cfg.optimizer, cfg.lr, cfg.momentum, cfg.num_envs, cfg.chunk_steps, None if dataset else cfg.demonstrator_name(), shaping is not None)
-    k_net, k_pool, k_run = jax.random.split(jax.random.key(cfg.seed), 3)
-    q = nets.init_net(learner.module, k_net, task.obs_dim, learner.tx)
-    template = task.state_template()
-    config_doc = {
-        "algo": algo,
-        "config": {**config_to_dict(cfg), "demonstrator_name": cfg.demonstrator_name(), "eval_enemy_name": cfg.eval_enemy_name()},
-        "task": spec.to_dict(),
-        "networks": {"q_params": nets.num_params(q.params)},
-    }
+    with Run(algo, cfg) as run:
+        # ---- Phase 0: set-up ------------------------------------------------------------------------
+        task = run.task
+        dataset = cfg.demonstrator_is_dataset()
+        learner = build_learner(task, tuple(cfg.actor_hidden), cfg.optimizer, cfg.lr, cfg.num_envs, cfg.chunk_steps, None if dataset else cfg.demonstrator_name(), shaping is not None)
+        k_net, k_pool, k_run = jax.random.split(jax.random.key(cfg.seed), 3)
+        q = nets.init_net(learner.module, k_net, task.obs_dim, learner.tx)
+        template = task.state_template()
 
-    def new_buffer(demo_cap: int) -> PrioritizedReplay:
-        return PrioritizedReplay(cfg.buffer_size, demo_cap, task.num_agents, template, alpha=cfg.per_alpha, eps_agent=cfg.per_eps_agent, eps_demo=cfg.per_eps_demo)
+        def new_buffer(demo_cap: int) -> PrioritizedReplay:
+            return PrioritizedReplay(cfg.buffer_size, demo_cap, task.num_agents, template, alpha=cfg.per_alpha, eps_agent=cfg.per_eps_agent, eps_demo=cfg.per_eps_demo)
 
-    st = RunState(
-        q=q, target=_variables(q), pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
-        buffer=new_buffer(0), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma), next_target=cfg.target_update_every,
-    )
-    periodic = PeriodicEval(cfg, run_dir, log, st.episodes)
-    if ckpt is not None:
-        arrays, meta = load_checkpoint(ckpt)
-        st.restore(arrays, meta)
-        clock.resume(meta)
-        periodic.resume(meta, st.episodes)
-        log.resume_at(st.episodes)
-        print(f"resumed {run_dir} from {ckpt.name} (phase {st.phase}, {st.episodes} episodes)")
-    log.write_config(config_doc)
+        st = DQfDState(
+            q=q, target=_variables(q), pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
+            buffer=new_buffer(0), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma), next_target=cfg.target_update_every,
+        )
+        run.start(st, learner.module, lambda: _variables(st.q), lambda: prefixed(flatten_named(st.q), "actor"), networks={"q_params": nets.num_params(q.params)})
 
-    def ckpt_meta() -> dict[str, Any]:
-        return {**st.meta(), **clock.elapsed(), **periodic.meta(), "algo": algo, "config": config_doc["config"], "task": spec.to_dict()}
+        def loss_head(episodes: int, eps: float, terms: np.ndarray) -> dict[str, Any]:
+            """The method's train.csv columns."""
+            bonus = shaping(episodes) if shaping is not None else 0.0
+            return {"updates": st.updates, "epsilon": eps, "agreement_bonus": bonus, **dict(zip(LOSS_NAMES, terms.tolist(), strict=True))}
 
-    def save() -> None:
-        save_checkpoint(run_dir, st.episodes, st.arrays(), ckpt_meta(), keep=cfg.keep_checkpoints)
+        def train_updates(count: int, beta: float, coeffs: np.ndarray, where: str) -> np.ndarray:
+            """'count' updates (rounded up to whole blocks) on prioritised minibatches; mean loss terms."""
+            k = cfg.updates_per_call
+            terms_all = []
+            if count <= 0:
+                return np.full(len(LOSS_NAMES), np.nan)
+            for _ in range(-(-count // k)):
+                rng = st.rng()
+                rows, agents, w = st.buffer.sample(rng, k * cfg.batch_size, beta)
+                rows, agents, w = (x.reshape(k, cfg.batch_size) for x in (rows, agents, w))
+                st.q, td, terms = learner.update_block(st.q, st.target, st.buffer.batch(rows, agents, w), jnp.asarray(coeffs, jnp.float32))
+                st.buffer.update_priorities(rows.ravel(), agents.ravel(), np.asarray(td).ravel())
+                st.updates += k
+                # The target network is copied every target_update_every updates.
+                if st.updates >= st.next_target:
+                    st.target = _variables(st.q)
+                    st.next_target = (st.updates // cfg.target_update_every + 1) * cfg.target_update_every
+                terms_all.append(np.asarray(terms))
+            out = np.mean(terms_all, axis=0) if terms_all else np.full(len(LOSS_NAMES), np.nan)
+            check_finite("Q loss", float(out[0]), where)
+            check_finite("Q network parameters", st.q.params, where)
+            return out
 
-    def evaluate(variables: Any, seed_offset: int) -> dict[str, Any]:
-        return E.evaluate_task(eval_task, learner.module, variables, n=cfg.eval_episodes, seed=cfg.seed + seed_offset)
-
-    def train_row(episodes: int, eps: float, terms: np.ndarray, chunk_s: float) -> dict[str, Any]:
-        """One ``train.csv`` row (always the same keys: the CSV header is the first row's)."""
-        recent = {f"{k}_100": float(np.mean(st.history[k][-100:])) if st.history.get(k) else float("nan") for k in (*task.metric_names, "return")}
-        return {
-            "episodes": episodes, "env_steps": st.env_steps, "updates": st.updates, "epsilon": eps,
-            "agreement_bonus": shaping(episodes) if shaping is not None else 0.0,
-            **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)), **recent, "chunk_s": chunk_s, **clock.elapsed(),
-        }
-
-    def train_updates(count: int, beta: float, coeffs: np.ndarray, where: str) -> np.ndarray:
-        """``count`` updates (rounded up to whole blocks); mean loss terms."""
-        k = cfg.updates_per_call
-        terms_all = []
-        if count <= 0:
-            return np.full(len(LOSS_NAMES), np.nan)
-        for _ in range(-(-count // k)):
-            rng = st.rng()
-            rows, agents, w = st.buffer.sample(rng, k * cfg.batch_size, beta)
-            rows, agents, w = (x.reshape(k, cfg.batch_size) for x in (rows, agents, w))
-            st.q, td, terms = learner.update_block(st.q, st.target, st.buffer.batch(rows, agents, w), jnp.asarray(coeffs, jnp.float32))
-            st.buffer.update_priorities(rows.ravel(), agents.ravel(), np.asarray(td).ravel())
-            st.updates += k
-            if st.updates >= st.next_target:
-                st.target = _variables(st.q)
-                st.next_target = (st.updates // cfg.target_update_every + 1) * cfg.target_update_every
-            terms_all.append(np.asarray(terms))
-        out = np.mean(terms_all, axis=0) if terms_all else np.full(len(LOSS_NAMES), np.nan)
-        check_finite("Q loss", float(out[0]), where)
-        check_finite("Q network parameters", st.q.params, where)
-        return out
-
-    eval_task = task.against(cfg.eval_enemy_name())
-    try:
         if st.phase == "pretrain":
-            # ---- Phase 1: demonstrations ----------------------------------------------------------
+            # ---- Phase 1: demonstrations, in the protected region of the buffer -----------------------
             if dataset:
                 ds = D.load_dataset(cfg.demonstrator, expect=task)
                 rows, done, seg, agree = demo_rows(learner, ds)
@@ -685,75 +648,40 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
             coeffs = np.asarray([td_on, td_on * cfg.lambda_nstep, cfg.lambda_margin, cfg.lambda_l2, cfg.margin])
             terms = train_updates(cfg.pretrain_updates, cfg.per_beta0, coeffs, "pre-training")
             st.pretrain_done = st.updates
-            log.train.write([train_row(0, float("nan"), terms, 0.0)])
+            run.log.train.write([run.train_row(loss_head(0, float("nan"), terms), 0.0, episodes=0)])
             print(f"pre-trained on demonstrations: {st.updates} updates ({time.time() - t0:.0f}s), " + ", ".join(f"{n} {v:.4f}" for n, v in zip(LOSS_NAMES, terms, strict=True)))
             if not cfg.keep_demos:
                 st.buffer.drop_demos()
             st.phase = "online"
-            save()
+            run.save()
 
         # ---- Phase 3: interaction ---------------------------------------------------------------------
-        prog = Progress(cfg.total_episodes, f"{algo} {spec.label()}", enabled=cfg.progress, start=st.episodes)
-        primary, secondary = task.progress_metrics
         lam_e = cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
         coeffs = np.asarray([1.0, cfg.lambda_nstep, lam_e, cfg.lambda_l2, cfg.margin])
-        next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
         terms = np.full(len(LOSS_NAMES), np.nan)
-        while st.episodes < cfg.total_episodes:
-            t0 = time.time()
-            frac = min(1.0, st.episodes / max(cfg.eps_decay_episodes, 1)) if cfg.eps_decay_episodes > 0 else 1.0
-            eps = cfg.eps_start + (cfg.eps_end - cfg.eps_start) * frac
-            st.pool, out = learner.collect_chunk(st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool))
-            rows, done, seg, stats = online_rows(out, st.assembler)
-            if shaping is not None:
-                agrees = rows.pop("agrees")
-                rows["agent_reward"] = rows["agent_reward"] + np.float32(shaping(st.episodes)) * agrees
-            st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step)
-            n_new = int(next(iter(stats.values())).shape[0]) if stats else 0
-            first_ep = st.episodes
-            st.episodes += n_new
-            st.env_steps += cfg.chunk_steps * cfg.num_envs
-            for k, v in stats.items():
-                st.history.setdefault(k, []).extend(v.tolist())
-            st.update_credit += cfg.chunk_steps * cfg.num_envs / cfg.train_every
-            if st.buffer.live_mask().any() and st.update_credit >= cfg.updates_per_call:
-                blocks = int(st.update_credit // cfg.updates_per_call)
-                st.update_credit -= blocks * cfg.updates_per_call
-                beta = cfg.per_beta0 + (1.0 - cfg.per_beta0) * min(1.0, st.episodes / max(cfg.total_episodes, 1))
-                terms = train_updates(blocks * cfg.updates_per_call, beta, coeffs, f"episode {st.episodes}")
-            row = train_row(st.episodes, eps, terms, time.time() - t0)
-            recent = {k: row[f"{k}_100"] for k in (primary, secondary)}
-            log.train.write([row])
-            log.scalars(st.episodes, row)
-            log.episodes.write([{"episode": first_ep + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}} for i in range(n_new)])
-            prog.update(st.episodes, f"{recent_status(recent, primary, secondary)}  loss {terms[0]:.4f}")
-            periodic.maybe_run(st.episodes, lambda off: evaluate(_variables(st.q), off), lambda: prefixed(flatten_named(st.q), "actor"), ckpt_meta())
-            if st.episodes >= next_ckpt:
-                save()
-                next_ckpt = (st.episodes // cfg.checkpoint_every + 1) * cfg.checkpoint_every
-        prog.close()
-    except TrainingDiverged as e:
-        log.close()
-        import sys
+        with run.loop():
+            while run.running():
+                # ε-greedy play of the shared Q network (legal actions only), compiled.
+                frac = min(1.0, st.episodes / max(cfg.eps_decay_episodes, 1)) if cfg.eps_decay_episodes > 0 else 1.0
+                eps = cfg.eps_start + (cfg.eps_end - cfg.eps_start) * frac
+                st.pool, out = learner.collect_chunk(st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool))
+                rows, done, seg, stats = online_rows(out, st.assembler)
+                if shaping is not None:
+                    agrees = rows.pop("agrees")
+                    rows["agent_reward"] = rows["agent_reward"] + np.float32(shaping(st.episodes)) * agrees
+                st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step)
+                run.count(stats, cfg.chunk_steps * cfg.num_envs)
+                # One update every train_every env steps, IS exponent β annealed to 1.
+                st.update_credit += cfg.chunk_steps * cfg.num_envs / cfg.train_every
+                if st.buffer.live_mask().any() and st.update_credit >= cfg.updates_per_call:
+                    blocks = int(st.update_credit // cfg.updates_per_call)
+                    st.update_credit -= blocks * cfg.updates_per_call
+                    beta = cfg.per_beta0 + (1.0 - cfg.per_beta0) * min(1.0, st.episodes / max(cfg.total_episodes, 1))
+                    terms = train_updates(blocks * cfg.updates_per_call, beta, coeffs, f"episode {st.episodes}")
+                run.log_chunk(loss_head(st.episodes, eps, terms), f"loss {terms[0]:.4f}")
 
-        print(f"hybridmarl: training stopped: {e}", file=sys.stderr)
-        return 3
-    save()
-
-    # ---- Phase 4: evaluation ----------------------------------------------------------------------------
-    result = evaluate(_variables(st.q), FINAL_EVAL_SEED)
-    result.update(enemy=eval_task.enemy, episodes=st.episodes, updates=st.updates, **clock.elapsed())
-    best = E.evaluate_best(run_dir, lambda v: evaluate(v, FINAL_EVAL_SEED))
-    if best is not None:
-        result["best"] = best
-    write_json_atomic(run_dir / "eval.json", result)
-    log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
-    plots.training_curve(st.history.get(secondary, []), run_dir / "curve.png", metric=secondary, title=f"{algo}: {spec.label()}, A^D = {cfg.demonstrator_name()}")
-    log.close()
-    print(task.result_line(result))
-    if best is not None:
-        print(E.best_line(task, result, best))
-    return 0
+        # ---- Phase 4: evaluation ----------------------------------------------------------------------------
+        return run.finish({"updates": st.updates})
 
 
-__all__ = ["ALGO", "PRESETS", "DQfDConfig", "PrioritizedReplay", "QLearner", "build_learner", "train"]
+__all__ = ["ALGO", "CONFIG", "PRESETS", "DQfDConfig", "PrioritizedReplay", "QLearner", "build_learner", "train"]

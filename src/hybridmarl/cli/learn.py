@@ -32,17 +32,11 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Literal
 
 import tyro
 
 from hybridmarl.errors import UserError
-
-
-def train_exit_code(result: Any) -> int:
-    """A learner's ``train`` returns its exit code (an int) or a result object (success)."""
-    return result if isinstance(result, int) and not isinstance(result, bool) else 0
-
 
 # -- train -----------------------------------------------------------------------------------------------
 
@@ -92,7 +86,8 @@ def train_command(args: list[str]) -> int:
         f"--preset {{{', '.join(mod.PRESETS)}}} (default {default_preset}) sets the defaults below."
     )
     cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
-    return train_exit_code(mod.train(cfg))
+    mod.train(cfg)
+    return 0
 
 
 # -- eval ------------------------------------------------------------------------------------------------

@@ -159,9 +159,8 @@ def training_config(cfg: QuickstartConfig, demonstrator: str, enemy: str, run_di
 
 def run_quickstart(cfg: QuickstartConfig) -> int:
     """Train (or resume, or reuse), evaluate, compare and replay as the module describes; return
-    0 (or a learner's non-zero exit code). Raises :class:`UserError` on bad input."""
+    0. Raises :class:`UserError` on bad input and :class:`TrainingDiverged` if training diverges."""
     from hybridmarl.algos import algo_module
-    from hybridmarl.cli.learn import train_exit_code
     from hybridmarl.io import write_json_atomic, write_text_atomic
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
@@ -181,9 +180,7 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     if (run_dir / "eval.json").is_file():
         print(f"{run_dir} holds a finished run: reusing it (delete the directory to retrain)")
     else:
-        rc = train_exit_code(algo_module(ALGO).train(train_cfg))
-        if rc != 0:
-            return rc
+        algo_module(ALGO).train(train_cfg)
     train_s = time.time() - t0
     bundle = E.load_policy(run_dir)
     _, meta = load_checkpoint(latest_checkpoint(run_dir))  # type: ignore[arg-type]

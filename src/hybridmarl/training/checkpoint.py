@@ -14,7 +14,7 @@ A checkpoint directory is written under a temporary name and renamed into place,
 never leaves a half-written checkpoint under a final name; a directory without ``meta.json`` is
 ignored. The last ``keep`` checkpoints are kept; ``best`` is never pruned and never resumed from.
 
-Named arrays come from ``tasks.flatten_named`` (pytree paths such as ``actor.params.Dense_0.kernel``);
+Named arrays come from ``training.task.flatten_named`` (pytree paths such as ``actor.params.Dense_0.kernel``);
 typed PRNG keys are stored as their uint32 key data.
 """
 
@@ -34,7 +34,7 @@ from safetensors.numpy import load_file, save_file
 from hybridmarl.errors import UserError
 
 CKPT_DIR = "checkpoints"
-#: Name of the checkpoint holding the best periodically evaluated policy (``common.PeriodicEval``).
+#: Name of the checkpoint holding the best periodically evaluated policy (``training.config.PeriodicEval``).
 BEST = "best"
 #: Array prefix of the actor's weight average (hybrid ``actor_average_from``); a policy loaded
 #: from a checkpoint that has it is the average (``evaluate.load_policy``).

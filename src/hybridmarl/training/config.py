@@ -1,30 +1,30 @@
-"""Shared machinery of the learners: the config base, run directories, checks, the registry.
+"""Shared machinery of the learners: the config base and its option groups, run directories,
+numerical checks, periodic evaluation, the run clock.
 
-Every learner (``--algo``) is a module with
+Every learner ('--algo', registered in 'hybridmarl.algos') is a module with
 
-- a frozen config dataclass deriving from :class:`TrainConfig` (tyro turns it into the command
-  line; every field's docstring says where its default comes from),
-- ``PRESETS``: preset name -> function ``(env) -> config`` (``--preset``),
-- ``train(cfg) -> int``: the whole run (exit code), using ``algos.checkpoint``,
-  ``algos.logger`` and ``algos.evaluate`` like every other learner.
-
-:data:`ALGOS` maps ``--algo`` names to those modules (imported lazily). Adding a learner (DQfD,
-OGTL, ...) = one module with those three names + one entry here.
+- a frozen config dataclass deriving from 'TrainConfig' (tyro turns it into the command line,
+  one box of '--help' per option group, with flat flags; every field's docstring says where its
+  default comes from),
+- 'PRESETS': preset name -> function '(env) -> config' ('--preset'),
+- 'train(cfg) -> TrainResult': the whole run, on the skeleton of 'hybridmarl.training.run'.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tyro.conf import OmitArgPrefixes
 
 from hybridmarl.errors import TrainingDiverged
 from hybridmarl.training.task import (
@@ -36,21 +36,34 @@ from hybridmarl.training.task import (
 )
 
 
+class Options:
+    """Base of the option groups of a config (each group is one box of ``--help``)."""
+
+    #: Fields of this group that only steer the run (budgets, cadences, paths, logging), never
+    #: what the compiled learner computes: ``compile_key`` resets them. Every other field is
+    #: part of the key.
+    RUN_ONLY: ClassVar[frozenset[str]] = frozenset()
+
+
 @dataclass(frozen=True)
-class TrainConfig:
-    """Settings shared by every learner (the task, the run, logging and checkpoints)."""
+class TaskOptions(Options):
+    """The task: the environment, the demonstrator and the enemy."""
+
+    # The compiled learners receive the task itself (and the demonstrator script) next to the
+    # config, so the task's fields are not part of the compile key.
+    RUN_ONLY = frozenset({"env", "scenario", "demonstrator", "enemy", "p_arrive", "time_penalty", "max_turns"})
 
     env: str = "combat"
-    """Environment: ``combat`` (SparCraft combat, paper Section 5.1) or ``traffic_junction``
+    """Environment: 'combat' (SparCraft combat, paper Section 5.1) or 'traffic_junction'
     (Section 5.3)."""
     scenario: str = "m5v5"
-    """Combat scenario ``m<A>v<B>`` (A Marines of ours vs B; Section 5.1 uses m5v5, m30v30,
+    """Combat scenario m<A>v<B> (A Marines of ours vs B; Section 5.1 uses m5v5, m30v30,
     m18v20, m24v30). Ignored for traffic_junction."""
     demonstrator: str = "attack-closest"
-    """The demonstrator A^D (Section 3): a script name (combat: ``attack-closest`` = c,
-    ``attack-weakest`` = w, Section 5.1; traffic_junction: ``always-gas`` or
-    ``yield-before-junction``), optionally ``NAME:EPS`` for ε-random legal actions, or the path
-    of a demonstration dataset (``hybridmarl demos collect``), which is then cloned (BC)."""
+    """The demonstrator A^D (Section 3): a script name (combat: 'attack-closest' = c,
+    'attack-weakest' = w, Section 5.1; traffic_junction: 'always-gas' or
+    'yield-before-junction'), optionally NAME:EPS for ε-random legal actions, or the path of a
+    demonstration dataset ('hybridmarl demos collect'), which is then cloned (BC)."""
     enemy: str | None = None
     """Combat enemy script during training. Default: the other heuristic (c <-> w), the paper's
     cross-validation setting (Section 5.1)."""
@@ -58,22 +71,43 @@ class TrainConfig:
     """Traffic junction arrival probability (0.2: the evaluation value of CommNet's medium
     task, which the paper follows, Section 5.3)."""
     time_penalty: bool = False
-    """Traffic junction: add CommNet's ``-0.01·τ`` per car per step (τ = steps since the car
-    entered; reference §1.0). Off: the paper's reward, collisions and arrivals only (Section 5.3)."""
+    """Traffic junction: add CommNet's -0.01·τ per car per step (τ = steps since the car
+    entered; docs/environments.md). Off: the paper's reward, collisions and arrivals only
+    (Section 5.3)."""
     max_turns: int = 1000
     """Combat: cap on engine decision turns per episode (the env's default)."""
+
+
+@dataclass(frozen=True)
+class RunOptions(Options):
+    """The run: seed, directory, checkpoints and logging."""
+
+    RUN_ONLY = frozenset({"seed", "run_dir", "name", "resume", "checkpoint_every", "keep_checkpoints", "tensorboard", "progress"})
+
     seed: int = 0
     """Seed of everything random (start states, network initialisation, minibatches)."""
     run_dir: str | None = None
-    """Where logs and checkpoints go. Default ``runs/<name>``."""
+    """Where logs and checkpoints go. Default runs/<name>."""
     name: str | None = None
-    """Run name (default ``<algo>-<env or scenario>-<demonstrator>-s<seed>``)."""
+    """Run name (default <algo>-<env or scenario>-<demonstrator>-s<seed>)."""
     resume: bool = False
     """Continue from the newest checkpoint in the run directory (exactly as if uninterrupted)."""
     checkpoint_every: int = 1000
     """Save a checkpoint every this many training episodes (and at the end)."""
     keep_checkpoints: int = 3
     """How many of the newest checkpoints to keep."""
+    tensorboard: bool = True
+    """Write TensorBoard event files under <run_dir>/tb."""
+    progress: bool = True
+    """Show a progress display (a bar on a terminal, status lines otherwise)."""
+
+
+@dataclass(frozen=True)
+class EvalOptions(Options):
+    """Evaluation: the final one (paper Section 5.1) and the periodic ones."""
+
+    RUN_ONLY = frozenset({"eval_episodes", "eval_enemy", "eval_every", "keep_best"})
+
     eval_episodes: int = 100
     """Battles / episodes of the final evaluation (paper Section 5.1: 100 battles)."""
     eval_enemy: str | None = None
@@ -81,23 +115,85 @@ class TrainConfig:
     learned from c fights w and vice versa, Section 5.1)."""
     eval_every: int = 0
     """Also evaluate the frozen policy every this many training episodes (0: only at the end),
-    on held-out *selection* start states (seed + 2) that the final evaluation (seed + 1) never
-    uses; results go to ``evals.csv`` and TensorBoard (``eval/``). The training log's win rate
-    is not a substitute: it is played by a policy that is still being updated."""
+    on held-out selection start states (seed + 2) that the final evaluation (seed + 1) never
+    uses; results go to evals.csv and TensorBoard (eval/). The training log's win rate is not a
+    substitute: it is played by a policy that is still being updated."""
     keep_best: bool = True
-    """With ``eval_every`` > 0: keep the policy of the best periodic evaluation (combat: W, then
-    R; traffic junction: failure rate, then return) as checkpoint ``best``; the final evaluation
-    then also reports it (``eval.json``'s ``best``), and ``hybridmarl eval --checkpoint best``
+    """With eval_every > 0: keep the policy of the best periodic evaluation (combat: W, then R;
+    traffic junction: failure rate, then return) as checkpoint 'best'; the final evaluation
+    then also reports it (eval.json's 'best'), and 'hybridmarl eval --checkpoint best'
     evaluates it. Selection uses its own states, so the final figures stay unbiased."""
-    tensorboard: bool = True
-    """Write TensorBoard event files under ``<run_dir>/tb``."""
-    progress: bool = True
-    """Show a progress display (a bar on a terminal, status lines otherwise)."""
+
+
+def _groups(cls: type) -> dict[str, type]:
+    """Group field name -> group class, of a config class."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        t = f.default_factory if f.default_factory is not dataclasses.MISSING else None
+        if isinstance(t, type) and issubclass(t, Options):
+            out[f.name] = t
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _locations(cls: type) -> dict[str, str | None]:
+    """Flat field name -> the group holding it (None: a field of the config itself)."""
+    groups = _groups(cls)
+    out: dict[str, str | None] = {}
+    for f in dataclasses.fields(cls):
+        if f.name in groups:
+            for g in dataclasses.fields(groups[f.name]):
+                out[g.name] = f.name
+        else:
+            out[f.name] = None
+    return out
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Settings shared by every learner (the task, the run, logging and checkpoints).
+
+    Fields live in option groups (one box each in '--help'), but their names are flat and
+    unique: the command line ('--num-envs'), 'replace(num_envs=...)', reading 'cfg.num_envs'
+    and config.json all use the flat name."""
+
+    task: OmitArgPrefixes[TaskOptions] = dataclasses.field(default_factory=TaskOptions)
+    run: OmitArgPrefixes[RunOptions] = dataclasses.field(default_factory=RunOptions)
+    evaluation: OmitArgPrefixes[EvalOptions] = dataclasses.field(default_factory=EvalOptions)
+
+    def __getattr__(self, name: str) -> Any:
+        # Only called when normal lookup fails: read a grouped field by its flat name.
+        if not name.startswith("_"):
+            group = _locations(type(self)).get(name)
+            if group is not None:
+                return getattr(object.__getattribute__(self, group), name)
+        raise AttributeError(f"{type(self).__name__!r} has no field {name!r}")
 
     def replace(self, **changes: Any) -> Any:
-        """A copy with the given fields changed (field names as on the command line, with
-        underscores)."""
-        return dataclasses.replace(self, **changes)
+        """A copy with the given fields changed, by their flat names (as on the command line,
+        with underscores); a group can also be replaced whole by its name."""
+        where = _locations(type(self))
+        top: dict[str, Any] = {}
+        grouped: dict[str, dict[str, Any]] = {}
+        for k, v in changes.items():
+            if k not in where:
+                if k in _groups(type(self)):
+                    top[k] = v
+                    continue
+                raise TypeError(f"{type(self).__name__} has no field {k!r}")
+            g = where[k]
+            if g is None:
+                top[k] = v
+            else:
+                grouped.setdefault(g, {})[k] = v
+        for g, kw in grouped.items():
+            top[g] = dataclasses.replace(top.get(g, getattr(self, g)), **kw)
+        return dataclasses.replace(self, **top)
+
+    @classmethod
+    def field_names(cls) -> list[str]:
+        """Every flat field name, in order."""
+        return list(_locations(cls))
 
     def task_spec(self) -> TaskSpec:
         env = canonical_env(self.env)
@@ -122,7 +218,7 @@ class TrainConfig:
         return str(peek_meta(path).get("demonstrator", ""))
 
     def demonstrator_name(self) -> str:
-        """The script name (canonical), or ``dataset:<file name>``."""
+        """The script name (canonical), or 'dataset:<file name>'."""
         if self.demonstrator_is_dataset():
             return f"dataset:{Path(self.demonstrator).name}"
         return canonical_script(canonical_env(self.env), self.demonstrator)
@@ -131,6 +227,29 @@ class TrainConfig:
         if self.eval_enemy:
             return canonical_script("combat", self.eval_enemy)
         return default_enemy(self.base_demonstrator())
+
+
+#: Run-only fields of a config that are not in a group (the learners' own budgets).
+RUN_ONLY_TOP = frozenset({"total_episodes", "time_limit_min"})
+
+
+def compile_key(cfg: Any) -> Any:
+    """The config with every run-only field (see 'Options.RUN_ONLY') reset to its default: the
+    key under which a learner's compiled functions are cached. A field not declared run-only
+    is part of the key, so a new field that shapes compilation can never reuse a stale
+    program; two runs that differ only in run-only fields share their programs."""
+    cls = type(cfg)
+    default = cls()
+    groups = _groups(cls)
+    changes: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        if f.name in groups:
+            g = getattr(cfg, f.name)
+            reset = {n: getattr(getattr(default, f.name), n) for n in type(g).RUN_ONLY}
+            changes[f.name] = dataclasses.replace(g, **reset)
+        elif f.name in RUN_ONLY_TOP:
+            changes[f.name] = getattr(default, f.name)
+    return dataclasses.replace(cfg, **changes)
 
 
 def default_run_name(algo: str, cfg: TrainConfig) -> str:
@@ -147,20 +266,20 @@ def resolve_run_dir(algo: str, cfg: TrainConfig) -> Path:
 
 
 def config_to_dict(cfg: Any) -> dict[str, Any]:
+    """The config as one flat JSON-ready dict (flat field names; tuples as lists)."""
     out = {}
-    for f in dataclasses.fields(cfg):
-        v = getattr(cfg, f.name)
-        out[f.name] = list(v) if isinstance(v, tuple) else v
+    for name in cfg.field_names():
+        v = getattr(cfg, name)
+        out[name] = list(v) if isinstance(v, tuple) else v
     return out
 
 
 def config_from_dict(cls: type, d: dict[str, Any]) -> Any:
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    kw = {}
-    for k, v in d.items():
-        if k in fields:
-            kw[k] = tuple(v) if isinstance(v, list) else v
-    return cls(**kw)
+    """The inverse of 'config_to_dict' (unknown keys, such as options a later version removed,
+    are ignored; missing ones keep their defaults)."""
+    names = set(cls.field_names())  # type: ignore[attr-defined]
+    kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items() if k in names}
+    return cls().replace(**kw)
 
 
 # -- numerical checks ------------------------------------------------------------------------------

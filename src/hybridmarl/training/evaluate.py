@@ -120,8 +120,14 @@ def summarize(task: Task, ep: dict[str, np.ndarray]) -> dict[str, Any]:
 # -- trained policies ------------------------------------------------------------------------------------
 
 
-class PolicyBundle:
-    """A trained actor loaded from a run directory."""
+class Policy:
+    """A trained policy loaded from a run directory ('load_policy'): 'predict(obs, legal)' plays
+    it (the legal argmax of Section 5.1), and the attributes say where it comes from.
+
+    Attributes: 'run_dir'; 'config' (the run's config.json); 'spec' (its 'TaskSpec'); 'module'
+    and 'variables' (the network and its parameters and batch-norm statistics); 'meta' (the
+    checkpoint's metadata); 'weights' ('last': the actor, or 'average': its weight average).
+    """
 
     def __init__(self, run_dir: Path, config: dict[str, Any], spec: TaskSpec, module: nets.MLP, variables: dict, meta: dict, weights: str = "last"):
         self.run_dir = run_dir
@@ -131,27 +137,45 @@ class PolicyBundle:
         self.variables = variables
         self.meta = meta
         self.weights = weights
-        """``last`` (the actor) or ``average`` (its weight average)."""
 
     @property
     def demonstrator(self) -> str:
         return str(self.config.get("config", {}).get("demonstrator_name", self.config.get("config", {}).get("demonstrator", "")))
 
+    def predict(self, obs: Any, legal: Any) -> np.ndarray:
+        """Actions for observations 'obs' [..., obs_dim] and legal-action masks 'legal'
+        [..., num_actions] (any leading axes, e.g. [agents] or [games, agents]): the legal action
+        with the largest probability under the policy (eval-mode batch norm). NumPy in and out
+        (int32 [...])."""
+        obs = np.asarray(obs, np.float32)
+        legal = np.asarray(legal, bool)
+        if obs.shape[:-1] != legal.shape[:-1]:
+            raise ValueError(f"obs {obs.shape} and legal {legal.shape} differ in their leading axes")
+        lead = obs.shape[:-1]
+        flat = _predict_fn(nets.module_spec(self.module))(self.variables, obs.reshape((-1, obs.shape[-1])), legal.reshape((-1, legal.shape[-1])))
+        return np.asarray(flat).reshape(lead)
 
-#: Which weights of a checkpoint ``load_policy`` reads: the run's policy (``auto``: the weight
-#: average where the run keeps one, else the actor), the ``average`` (an error without one) or
-#: the ``last`` actor.
+
+@functools.lru_cache(maxsize=16)
+def _predict_fn(spec: tuple[tuple[int, ...], int]):
+    module = nets.from_spec(spec)
+    return jax.jit(lambda variables, obs, legal: nets.actor_actions(module, variables, obs, legal))
+
+
+#: Which weights of a checkpoint 'load_policy' reads: the run's policy ('auto': the weight
+#: average where the run keeps one, else the actor), the 'average' (an error without one) or
+#: the 'last' actor.
 POLICY_CHOICES = ("auto", "average", "last")
 
 
-def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, policy: str = "auto") -> PolicyBundle:
-    """The policy of one checkpoint of a run (``config.json`` says how it was built): the newest,
-    or ``checkpoint``, given as its episode count (``700``), its directory name
-    (``ckpt_000000700``) under ``run_dir/checkpoints``, or ``best``. ``policy`` (see
-    ``POLICY_CHOICES``) picks the actor or its weight average (``actor_average.*``, hybrid
-    ``actor_average_from``); by default the average where the run keeps one."""
-    if policy not in POLICY_CHOICES:
-        raise ValueError(f"policy must be one of {', '.join(POLICY_CHOICES)}, not {policy!r}")
+def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, weights: str = "auto") -> Policy:
+    """The policy of one checkpoint of a run (config.json says how it was built): the newest,
+    or 'checkpoint', given as its episode count (700), its directory name (ckpt_000000700)
+    under run_dir/checkpoints, or 'best'. 'weights' (see 'POLICY_CHOICES') picks the actor or
+    its weight average (hybrid actor_average_from); by default the average where the run keeps
+    one. Raises 'CheckpointError' (a 'UserError') for a missing or unreadable run."""
+    if weights not in POLICY_CHOICES:
+        raise CheckpointError(f"weights must be one of {', '.join(POLICY_CHOICES)}, not {weights!r}")
     run_dir = Path(run_dir)
     cfg_path = run_dir / "config.json"
     if not cfg_path.is_file():
@@ -164,11 +188,11 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, policy
     hidden = tuple(doc["config"].get("actor_hidden", nets.ACTOR_HIDDEN))
     module = nets.actor_module(task.num_actions, hidden)
     template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False))
-    # A run with weight averaging (hybrid ``actor_average_from``) exports the average.
+    # A run with weight averaging (hybrid actor_average_from) exports the average.
     has_average = any(k.startswith(AVERAGE_PREFIX + ".") for k in arrays)
-    if policy == "average" and not has_average:
+    if weights == "average" and not has_average:
         raise CheckpointError(f"{ck}: holds no weight average (the run was trained without --actor-average-from, or before its first average)")
-    prefix = AVERAGE_PREFIX if has_average and policy != "last" else "actor"
+    prefix = AVERAGE_PREFIX if has_average and weights != "last" else "actor"
     try:
         variables = {
             "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),
@@ -176,7 +200,7 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, policy
         }
     except (KeyError, ValueError) as e:
         raise CheckpointError(f"{ck}: actor does not fit the run's config ({e})") from None
-    return PolicyBundle(run_dir, doc, spec, module, variables, meta, "average" if prefix == AVERAGE_PREFIX else "last")
+    return Policy(run_dir, doc, spec, module, variables, meta, "average" if prefix == AVERAGE_PREFIX else "last")
 
 
 def evaluate_best(run_dir: str | Path, evaluate: Any) -> dict[str, Any] | None:
@@ -184,15 +208,15 @@ def evaluate_best(run_dir: str | Path, evaluate: Any) -> dict[str, Any] | None:
     ``evaluate(variables) -> result`` plus the checkpoint's ``episodes`` and its ``selection``
     result. None without a best checkpoint."""
     try:
-        bundle = load_policy(run_dir, BEST)
+        best = load_policy(run_dir, BEST)
     except CheckpointError:
         return None
-    res = evaluate(bundle.variables)
-    res.update(episodes=bundle.meta.get("episodes"), selection=bundle.meta.get("selection"))
+    res = evaluate(best.variables)
+    res.update(episodes=best.meta.get("episodes"), selection=best.meta.get("selection"))
     return res
 
 
-def mirrored_enemy(bundle: PolicyBundle, spec: TaskSpec):
+def mirrored_enemy(bundle: Policy, spec: TaskSpec):
     """A trained combat actor as an enemy *script* for player 1 of ``spec``'s scenario.
 
     The battle is mirrored for it (players swapped, x flipped around the map centre) so it sees

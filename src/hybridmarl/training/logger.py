@@ -7,7 +7,7 @@ Under the run directory:
 - ``episodes.csv``: one row per finished training episode (its metrics);
 - ``evals.csv``: one row per periodic evaluation of the frozen policy (``--eval-every``);
 - ``tb/``: TensorBoard event files (the same scalars, plus the config as text);
-- ``curve.png``: the training curve (``algos.plots``).
+- ``curve.png``: the training curve (``training.plots``).
 
 On ``--resume`` the CSV rows written after the checkpoint are dropped, so the files read as if
 the run had never stopped. The progress display is a rich progress bar on a terminal and a

@@ -1,6 +1,6 @@
 """The method's pure numerical pieces: returns (Eq. 1), critic loss (Eq. 3), advantage (Eq. 7),
 actor loss (Eq. 8) and the behavioural-cloning loss (Section 3); and the DQfD / OGTL baselines'
-Q-learning pieces (reference §2, Hester et al. 2018): legal max, the double-Q bootstrap, the TD
+Q-learning pieces (Hester et al., AAAI 2018; docs/baselines.md): legal max, the double-Q bootstrap, the TD
 error's Huber loss, the large-margin supervised loss, the L2 penalty and the n-step returns.
 
 All functions are pure and jittable and take plain arrays, so the tests can feed them
@@ -91,7 +91,7 @@ def bc_loss(
     return jnp.sum(nll * w) / jnp.maximum(jnp.sum(w), 1.0)
 
 
-# -- DQfD / OGTL (reference §2, Hester et al. 2018) -------------------------------------------------------
+# -- DQfD / OGTL (Hester et al., AAAI 2018; docs/baselines.md) -------------------------------------------------------
 
 
 def legal_max(q: jax.Array, legal: jax.Array) -> jax.Array:

@@ -72,10 +72,10 @@ class NetState(struct.PyTreeNode):
     step: jax.Array  # int32 [] optimizer steps taken
 
 
-def make_optimizer(name: str, lr: float, momentum: float = 0.0) -> optax.GradientTransformation:
-    """``sgd`` (the paper's choice, Section 5.1, lr 1e-3) or ``adam``."""
+def make_optimizer(name: str, lr: float) -> optax.GradientTransformation:
+    """Plain ``sgd`` (the paper's choice, Section 5.1, lr 1e-3) or ``adam``."""
     if name == "sgd":
-        return optax.sgd(lr, momentum=momentum or None)
+        return optax.sgd(lr)
     if name == "adam":
         return optax.adam(lr)
     raise ValueError(f"unknown optimizer {name!r} (known: sgd, adam)")

@@ -143,7 +143,6 @@ def best_response_dynamics(
     a_init: jax.Array,
     legal: jax.Array,
     iterations: int = 7,
-    min_gain: float = 0.0,
     work_batch: int | None = None,
 ) -> BRDResult:
     """Alg. 1 for B games at once (see the module docstring). Jittable.
@@ -155,10 +154,6 @@ def best_response_dynamics(
         a_init: int32 [B, N] start joint actions (``A^D(s)``, or the actor's).
         legal: bool [B, N, A] legal actions.
         iterations: the cap on sweeps over the agents (paper: 7).
-        min_gain: an agent switches only if its best action beats its current one by more than
-            this (0: any strict improvement, the paper's argmax). A positive margin keeps the
-            start action where alternatives are near-ties, which makes Ã a less noisy target
-            for the decentralised actor. ``Q(s, Ã)`` still never decreases.
         work_batch: ``q_fn`` calls simulate ``work_batch x A`` candidates each (None or <= 0, or
             >= B: the dense schedule, every game's A candidates in one call per visit, in place).
             Otherwise each visit gathers the legal (game, action) pairs of the games that still
@@ -228,7 +223,7 @@ def best_response_dynamics(
         cur = act[bidx, g]
         q_cur = jnp.where(lg[bidx, cur], q[bidx, cur], -jnp.inf)
         q_best = ql[bidx, best]
-        improve = need & (q_best > q_cur + min_gain) & update
+        improve = need & (q_best > q_cur) & update
         q_now = jnp.where(improve, q_best, q_cur)
         w = jnp.where(need, bidx, b)  # scatter index: out of range (dropped) unless needed
         act = act.at[w, g].set(jnp.where(improve, best, cur), mode="drop")

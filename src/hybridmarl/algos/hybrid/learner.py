@@ -1,0 +1,207 @@
+"""The hybrid method's compiled learner: networks, optimisers and the jitted functions of one
+(task, compile key) pair.
+
+- 'demo_chunk': Phase 2's data, A^D playing from random start states;
+- 'fit_critic': Eq. 3 on the buffer B (minibatch SGD on (V(s) - V^D(s))^2);
+- 'train_chunk': 'chunk_steps' steps of Alg. 2 for all B games as one 'lax.scan': at every step
+  Alg. 1 ('brd.best_response_dynamics') on the critic, the advantages of Eq. 7, the actor's SGD
+  step on Eq. 8 (or the cross-entropy toward ã_g, 'actor_target=best'), and every agent playing
+  the legal argmax of the updated actor;
+- 'brd_q_fn': Alg. 1's Q estimate (Eq. 2's one step, K steps, or to the end).
+
+'build_learner' caches learners under 'training.config.compile_key' of the config, so runs that
+differ only in run-only fields (seed, budgets, paths, cadences) share compiled programs.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+
+from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
+from hybridmarl.algos.hybrid.config import HybridConfig
+from hybridmarl.training import networks as nets
+from hybridmarl.training.config import compile_key
+from hybridmarl.training.losses import actor_loss, advantages, bc_loss, critic_loss
+from hybridmarl.training.rollout import Pool, pool_steps
+from hybridmarl.training.task import Task
+
+
+class Learner:
+    """Networks, optimisers and the jitted functions of one (task, static settings) pair."""
+
+    def __init__(self, task: Task, cfg: HybridConfig, demo_script: str | None) -> None:
+        self.task = task
+        self.actor_mod = nets.actor_module(task.num_actions, cfg.actor_hidden)
+        self.critic_mod = nets.critic_module(cfg.critic_hidden)
+        self.actor_tx = nets.make_optimizer(cfg.optimizer, cfg.actor_lr)
+        self.critic_tx = nets.make_optimizer(cfg.optimizer, cfg.critic_lr)
+        self.b = cfg.num_envs
+        demo = task.demonstrator(demo_script) if demo_script else None
+        self.demo_script_fn = demo
+        actor_mod = self.actor_mod
+
+        def demo_act(clone_vars, key, states, obs, legal):
+            """A^D(s) for a batch: the script, or the clone's legal argmax."""
+            if demo is not None:
+                return jax.vmap(demo)(jax.random.split(key, self.b), states).astype(jnp.int32)
+            return nets.actor_actions(actor_mod, clone_vars, obs, legal)
+
+        self.demo_act = demo_act
+        self.demo_chunk = jax.jit(functools.partial(self._demo_chunk, steps=cfg.chunk_steps))
+        self.train_chunk = jax.jit(
+            functools.partial(
+                self._train_chunk, steps=cfg.chunk_steps, gamma=cfg.gamma,
+                iterations=cfg.brd_iterations, start=cfg.brd_start, continuation=continuation_policy(cfg),
+                lookahead=simulated_steps(cfg),
+                actor_steps=cfg.actor_steps, target=cfg.actor_target, work_batch=cfg.brd_work_batch,
+            )
+        )
+        self.fit_critic = jax.jit(functools.partial(self._fit_critic, batch=cfg.critic_batch_size))
+        self.critic_values = jax.jit(self._critic_values)
+
+    # Phase 2's data: A^D plays from random start states.
+    def _demo_chunk(self, pool: Pool, clone_vars: Any, *, steps: int):
+        def act(carry, key, states, obs, legal):
+            return self.demo_act(carry, key, states, obs, legal), carry, {}
+
+        pool, _, out = pool_steps(self.task, act, pool, clone_vars, steps)
+        return pool, out
+
+    def value_fn(self, critic_vars: Any):
+        def v(states: Any) -> jax.Array:
+            feats = jax.vmap(self.task.value_features)(states)
+            return nets.apply_eval(self.critic_mod, critic_vars, feats)[:, 0]
+
+        return v
+
+    def _critic_values(self, critic_vars: Any, states: Any) -> jax.Array:
+        return self.value_fn(critic_vars)(states)
+
+    # Eq. 3 on the buffer B: minibatch SGD on (V(s) - V^D(s))^2.
+    def _fit_critic(self, critic: nets.NetState, states: Any, returns: jax.Array, size: jax.Array, key: jax.Array, num_steps: jax.Array, *, batch: int):
+        mod, tx, task = self.critic_mod, self.critic_tx, self.task
+
+        def one(i, c):
+            critic, total = c
+            idx = jax.random.randint(jax.random.fold_in(key, i), (batch,), 0, jnp.maximum(size, 1))
+            feats = jax.vmap(task.value_features)(jax.tree.map(lambda x: x[idx], states))
+
+            def loss_fn(params, batch_stats):
+                v, bs = nets.apply_train(mod, params, batch_stats, feats)
+                return critic_loss(v[:, 0], returns[idx]), (bs, None)
+
+            critic, loss, _ = nets.sgd_step(critic, tx, loss_fn)
+            return critic, total + loss
+
+        critic, total = jax.lax.fori_loop(0, num_steps, one, (critic, jnp.zeros((), jnp.float32)))
+        return critic, total / jnp.maximum(num_steps, 1).astype(jnp.float32)
+
+    # Phase 3, K steps of Alg. 2 for all B games.
+    def brd_q_fn(self, actor: Any, critic_vars: Any, clone_vars: Any, *, gamma: float, lookahead: int, continuation: str):
+        """Alg. 1's Q estimate for B games: ``lookahead`` simulated steps (1: Eq. 2's one step;
+        ``TO_THE_END``: to the end, critic unused), the later ones played by ``continuation``
+        (``actor``: the actor's legal argmax; ``demonstrator``: A^D, the script or the clone)."""
+        task, mod = self.task, self.actor_mod
+
+        def batch_step_fn(keys, states, actions):
+            _, s2, r, d, _ = task.batch_step(keys, states, actions)
+            return r, s2, d
+
+        def policy(keys, flat_states):
+            if continuation == "demonstrator" and self.demo_script_fn is not None:
+                return jax.vmap(self.demo_script_fn)(keys, flat_states).astype(jnp.int32)
+            fobs = jax.vmap(task.observe)(flat_states)
+            flegal = jax.vmap(task.avail)(flat_states)
+            return nets.actor_actions(mod, actor if continuation == "actor" else clone_vars, fobs, flegal)
+
+        value_fn = self.value_fn(critic_vars) if lookahead < TO_THE_END else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
+        return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, policy_fn=policy, batch_step_fn=batch_step_fn)
+
+    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, work_batch: int):
+        task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
+
+        def act(actor, key, states, obs, legal):
+            q_fn = self.brd_q_fn(actor, critic_vars, clone_vars, gamma=gamma, lookahead=lookahead, continuation=continuation)
+            k_demo, k_sim = jax.random.split(key)
+            n, na = legal.shape[1], legal.shape[2]
+            a_actor = nets.actor_actions(mod, actor, obs, legal)
+            # Alg. 1 from the actor's actions (Section 4.3) or from A^D.
+            a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, states, obs, legal)
+            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations, work_batch=work_batch)
+            # Eq. 7: advantage of every legal action of every agent that has a choice.
+            adv = advantages(res.q, legal)
+            weight = res.q_valid & (jnp.sum(legal, -1) >= 2)
+            flat_w = weight.reshape(-1)
+            any_w = jnp.any(flat_w)
+            bn_mask = jnp.where(any_w, flat_w, jnp.ones_like(flat_w))
+
+            # Eq. 8: theta <- theta + eta * sum_a grad log p(a|O) A(s, a), shared actor.
+            def loss_fn(params, batch_stats):
+                logits, bs = nets.apply_train(mod, params, batch_stats, obs.reshape(b * n, -1), mask=bn_mask)
+                if target == "best":
+                    loss = bc_loss(logits, res.actions.reshape(b * n), legal.reshape(b * n, na), flat_w)
+                else:
+                    loss = actor_loss(logits, adv.reshape(b * n, na), legal.reshape(b * n, na), flat_w)
+                return loss, (bs, None)
+
+            def sgd_step(_, c):
+                net, _ = c
+                net, loss, _ = nets.sgd_step(net, tx, loss_fn)
+                return net, loss
+
+            new, loss = jax.lax.fori_loop(0, actor_steps, sgd_step, (actor, jnp.zeros((), jnp.float32)))
+            actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
+            # Perform the updated actor's legal argmax (Alg. 2).
+            actions = nets.actor_actions(mod, actor, obs, legal)
+            wf = weight.astype(jnp.float32)
+            nw = jnp.maximum(jnp.sum(wf), 1.0)
+            aux = {
+                "actor_loss": loss,
+                "brd_sweeps": res.sweeps.astype(jnp.float32),
+                "brd_visits": res.evaluated.astype(jnp.float32) / b,
+                "brd_simulated": res.simulated.astype(jnp.float32) / b,
+                "brd_changes": jnp.mean(res.changes.astype(jnp.float32)),
+                "q_gain": jnp.nanmean(res.q_final - res.q_init),
+                "q_final": jnp.nanmean(res.q_final),
+                "adv_max": jnp.sum(jnp.max(adv, -1) * wf) / nw,
+                "agree": jnp.sum((a_actor == res.actions) * wf) / nw,
+                "deciders": jnp.sum(wf) / b,
+            }
+            return actions, actor, aux
+
+        pool, actor, out = pool_steps(task, act, pool, actor, steps)
+        return pool, actor, out
+
+
+#: Simulated steps that stand for "to the end of the episode" (``lookahead_steps=0``); the Q
+#: loop stops early once every simulated game has ended.
+TO_THE_END = 1_000_000
+
+
+def simulated_steps(cfg: HybridConfig) -> int:
+    """Steps of Alg. 1's Q simulation: ``lookahead_steps``, where 0 means ``TO_THE_END``."""
+    return cfg.lookahead_steps if cfg.lookahead_steps > 0 else TO_THE_END
+
+
+def continuation_policy(cfg: HybridConfig) -> str:
+    """Who plays a lookahead's continuation steps: ``lookahead_policy``, where ``start`` means
+    the policy Alg. 1 starts from."""
+    return cfg.brd_start if cfg.lookahead_policy == "start" else cfg.lookahead_policy
+
+
+def build_learner(task: Task, cfg: HybridConfig, demo_script: str | None) -> Learner:
+    """The learner of a task and config, compiled once per (task, compile key, demonstrator
+    script)."""
+    return _cached_learner(task, compile_key(cfg), demo_script)
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_learner(task: Task, key: HybridConfig, demo_script: str | None) -> Learner:
+    return Learner(task, key, demo_script)
+
+
+__all__ = ["TO_THE_END", "Learner", "build_learner", "continuation_policy", "simulated_steps"]
