@@ -1,4 +1,4 @@
-"""Engine throughput benchmark (prints JSON). Same as ``hybridmarl bench engine``.
+"""Engine throughput benchmark (prints JSON). 
 
     python bench/engine.py                      # 5v5 and 30v30, batch 1/64/1024/4096
     python bench/engine.py --batch-sizes 1024 --repeats 3
