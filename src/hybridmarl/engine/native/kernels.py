@@ -670,7 +670,7 @@ def play_games(fields, time, turn, stale, prev_hp_sum, ltd2_total, walkable, scr
                overkill_pass, stalemate_limit, max_turns, turn_budget, seed, game_ids, n_chunks,
                winner_out, ltd2_out, actions_out):
     """Play every game of the batch until it is over or has played ``turn_budget`` more turns
-    (-1: no budget), in parallel over ``n_chunks`` strided chunks of games. Writes the winner,
+    (-1: no budget), game ``g`` with script codes ``script0[g]`` and ``script1[g]``, in parallel over ``n_chunks`` strided chunks of games. Writes the winner,
     the final LTD2 evaluation and adds the unit actions issued to the outputs."""
     utype, hp = fields[0], fields[8]
     n_games = hp.shape[0]
@@ -683,7 +683,7 @@ def play_games(fields, time, turn, stale, prev_hp_sum, ltd2_total, walkable, scr
                 if turn_budget >= 0 and played >= turn_budget:
                     break
                 actions_out[g] += play_turn(g, fields, time, turn, stale, prev_hp_sum, walkable,
-                                            script0, script1, overkill_pass, seed, game_ids[g], ws)
+                                            script0[g], script1[g], overkill_pass, seed, game_ids[g], ws)
                 played += 1
             winner_out[g] = winner(utype[g], hp[g])
             ltd2_out[g] = ltd2_eval(utype[g], hp[g], ltd2_total[g])

@@ -70,7 +70,8 @@ def compile_kernels(quiet: bool = False) -> float:
     start = _time.perf_counter()
     tiny = build_native_states([[UnitSpec("Terran_Marine", 0, 100, 100), UnitSpec("Terran_Marine", 1, 140, 100)]])
     walkable = np.ones((4, 4), np.bool_)
-    _run_kernel(tiny, walkable, K.ATTACK_CLOSEST, K.ATTACK_CLOSEST, True, 50, 20000, -1, 0,
+    codes = np.zeros(1, np.int64)
+    _run_kernel(tiny, walkable, codes, codes, True, 50, 20000, -1, 0,
                 np.zeros(1, np.int64), 1)
     acts = np.zeros((2, 1), np.int64)
     K.step_one(0, tiny.unit_fields(), tiny.time, tiny.turn, tiny.stale, tiny.prev_hp_sum, walkable,
@@ -91,6 +92,8 @@ def _run_kernel(states: NativeStates, walkable, s0, s1, overkill_pass, stalemate
     if threads is not None:
         numba.set_num_threads(int(threads))
     chunks = max(1, min(b, numba.get_num_threads() * 16))
+    s0 = np.ascontiguousarray(np.broadcast_to(np.asarray(s0, np.int64), (b,)))
+    s1 = np.ascontiguousarray(np.broadcast_to(np.asarray(s1, np.int64), (b,)))
     K.play_games(states.unit_fields(), states.time, states.turn, states.stale, states.prev_hp_sum,
                  states.ltd2_total, walkable, s0, s1, overkill_pass, stalemate_limit, max_turns,
                  turn_budget, seed, game_ids, chunks, winner, ltd2, n_actions)
@@ -103,6 +106,13 @@ def _script_code(name: str | None) -> int:
     return K.SCRIPT_CODES[canonical_name(name)]
 
 
+def _script_codes(names: str | Sequence[str]) -> np.ndarray | int:
+    """One script code, or one per game for a sequence of names (mixed match-ups in a batch)."""
+    if isinstance(names, str):
+        return _script_code(names)
+    return np.array([_script_code(n) for n in names], np.int64)
+
+
 def _walkable(rules: Rules) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(rules.walkable), dtype=np.bool_)
 
@@ -110,8 +120,8 @@ def _walkable(rules: Rules) -> np.ndarray:
 def play(
     states: NativeStates,
     rules: Rules,
-    p0: str,
-    p1: str,
+    p0: str | Sequence[str],
+    p1: str | Sequence[str],
     *,
     seed: int = 0,
     threads: int | None = None,
@@ -119,12 +129,12 @@ def play(
     in_place: bool = False,
 ) -> tuple[NativeStates, NativeResults]:
     """Play every game of the batch to its end (``game.play_game`` for each). Returns the final
-    states and the results. ``game_ids`` (default 0..B-1) and ``seed`` feed the random script."""
+    states and the results. ``p0``/``p1``: a script name, or one per game. ``game_ids`` (default 0..B-1) and ``seed`` feed the random script."""
     compile_kernels()
     final = states if in_place else states.copy()
     ids = np.arange(final.batch_size, dtype=np.int64) if game_ids is None else np.asarray(game_ids, np.int64)
     winner, ltd2, n_actions = _run_kernel(
-        final, _walkable(rules), _script_code(p0), _script_code(p1), rules.overkill == "pass",
+        final, _walkable(rules), _script_codes(p0), _script_codes(p1), rules.overkill == "pass",
         rules.stalemate_limit, rules.max_turns, -1, int(seed), ids, threads,
     )
     res = NativeResults(winner, final.time.copy(), final.turn.copy(), final.hp.copy(), ltd2, n_actions)
@@ -134,17 +144,18 @@ def play(
 def advance(
     states: NativeStates,
     rules: Rules,
-    p0: str,
-    p1: str,
+    p0: str | Sequence[str],
+    p1: str | Sequence[str],
     turns: int,
     *,
     seed: int = 0,
     threads: int | None = None,
 ) -> NativeStates:
-    """The batch after ``turns`` more decision turns; a game that ends sooner stays at its end."""
+    """The batch after ``turns`` more decision turns; a game that ends sooner stays at its end.
+    ``p0``/``p1``: a script name, or one per game."""
     compile_kernels()
     out = states.copy()
-    _run_kernel(out, _walkable(rules), _script_code(p0), _script_code(p1), rules.overkill == "pass",
+    _run_kernel(out, _walkable(rules), _script_codes(p0), _script_codes(p1), rules.overkill == "pass",
                 rules.stalemate_limit, rules.max_turns, int(turns), int(seed),
                 np.arange(out.batch_size, dtype=np.int64), threads)
     return out
