@@ -108,8 +108,7 @@ def lockstep(
     ours = states
     step = 0
     while max_turns is None or step < max_turns:
-        over = np.array([_over(ours, g, rules) for g in range(ours.batch_size)])
-        if over.all():
+        if games_over(ours, rules).all():
             break
         ref, _ = fn(ref, c0, c1, rules.walkable)
         ours = advance(ours, rules, list(p0), list(p1), 1)
@@ -120,10 +119,11 @@ def lockstep(
     return ours, step
 
 
-def _over(states: NativeStates, g: int, rules: Rules) -> bool:
-    from hybridmarl.engine.native.play import game_over
-
-    return game_over(states, g, rules)
+def games_over(states: NativeStates, rules: Rules) -> np.ndarray:
+    """bool [B]: ``rules.game_over`` of every game, in NumPy."""
+    can_hurt = (states.hp > 0) & (U.TABLES.script_damage[states.utype.clip(0, U.NUM_TYPES - 1)] > 0)
+    dead = ~can_hurt.any(axis=2)
+    return dead.any(axis=1) | (states.stale > rules.stalemate_limit) | (states.turn >= rules.max_turns)
 
 
 @dataclass
