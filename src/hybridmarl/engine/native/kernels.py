@@ -118,7 +118,7 @@ def _clip(v, lo, hi):
     return lo if v < lo else (hi if v > hi else v)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def minimum_free_time(hp, t_move, t_attack, p):
     """A side's smallest free time over living units (INF with none alive)."""
     best = INF
@@ -133,7 +133,7 @@ def minimum_free_time(hp, t_move, t_attack, p):
 # ----------------------------------------------------------------------------- turn context
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def prepare_turn(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws):
     """``rules.turn_context``: movers, acting units, current positions, order keys, and the move
     lengths / walkable directions / attack readiness of the acting units. Returns the count of
@@ -189,7 +189,7 @@ def _d2(cx, cy, p, u, j):
     return dx * dx + dy * dy
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def first_legal_action(p, u, utype, ws):
     """The first entry of SparCraft's legal-action list: first attack in enemy order, else
     RELOAD, else the first walkable move, else PASS."""
@@ -213,7 +213,7 @@ def first_legal_action(p, u, utype, ws):
     return PASS_ACTION
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def closest_enemy(p, u, ws):
     """``getClosestEnemyUnit``: smallest squared distance within 1000 px, ties to the lower slot;
     with none that close, the first enemy in unit order (clamped like an XLA gather)."""
@@ -242,65 +242,31 @@ def _in_own_range(p, u, j, utype, ws):
     return RANGE_SQ[utype[p, u]] >= _d2(ws[0], ws[1], p, u, j)
 
 
-@njit(cache=True)
-def move_toward(p, u, tx, ty, x, y, ws):
-    """(action code, found): the walkable MOVE whose unit step from the stored position is closest
-    to (tx, ty); ties to the first of left, right, down, up."""
-    move_ok = ws[8]
-    best = INF
+@njit(cache=True, inline="always")
+def best_move(away, p, u, tx, ty, x, y, move_ok):
+    """(action code, found) of the walkable MOVE whose unit step from the stored position is
+    closest to (tx, ty), ties to the first of left, right, down, up; with ``away`` the furthest
+    (first maximum), found only with a strictly positive score."""
+    best = -1 if away else INF
     for d in range(4):
         if move_ok[p, u, d]:
             dx = x[p, u] + DIR_X[d] - tx
             dy = y[p, u] + DIR_Y[d] - ty
-            k = ((dx * dx + dy * dy) << 2) | d
-            if k < best:
-                best = k
+            score = (dx * dx + dy * dy) << 2
+            if away:
+                k = score | (3 - d)
+                if k > best:
+                    best = k
+            else:
+                k = score | d
+                if k < best:
+                    best = k
+    if away:
+        return MOVE_BASE + (3 - (best & 3)), (best >> 2) > 0
     return MOVE_BASE + (best & 3), best < INF
 
 
-@njit(cache=True)
-def move_away(p, u, tx, ty, x, y, ws):
-    """(action code, found): the walkable MOVE furthest from (tx, ty) (first maximum), found only
-    with a strictly positive score."""
-    move_ok = ws[8]
-    best = -1
-    for d in range(4):
-        if move_ok[p, u, d]:
-            dx = x[p, u] + DIR_X[d] - tx
-            dy = y[p, u] + DIR_Y[d] - ty
-            k = ((dx * dx + dy * dy) << 2) | (3 - d)
-            if k > best:
-                best = k
-    return MOVE_BASE + (3 - (best & 3)), (best >> 2) > 0
-
-
-@njit(cache=True)
-def _approach_or_reload(p, u, utype, x, y, ws):
-    q = 1 - p
-    c = closest_enemy(p, u, ws)
-    if not ws[7][p, u] and _in_own_range(p, u, c, utype, ws):
-        return RELOAD_ACTION
-    code, found = move_toward(p, u, ws[0][q, c], ws[1][q, c], x, y, ws)
-    if found:
-        return code
-    return first_legal_action(p, u, utype, ws)
-
-
-@njit(cache=True)
-def _kite(p, u, utype, x, y, ws):
-    q = 1 - p
-    c = closest_enemy(p, u, ws)
-    tx, ty = ws[0][q, c], ws[1][q, c]
-    if _in_own_range(p, u, c, utype, ws):
-        code, found = move_away(p, u, tx, ty, x, y, ws)
-    else:
-        code, found = move_toward(p, u, tx, ty, x, y, ws)
-    if found:
-        return code
-    return first_legal_action(p, u, utype, ws)
-
-
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _attack_target(kind, p, u, utype, hp, ws):
     """Attack target of an Attack*/Kiter* script (-1 if the unit cannot attack anyone now).
     kind 0: closest, 1: weakest (lowest HP), 2: highest dpf / HP; ties to the enemy order."""
@@ -333,7 +299,7 @@ def _attack_target(kind, p, u, utype, hp, ws):
     return best_j
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _nok_targets(p, utype, hp, ws):
     """NOKDPS's sequential no-overkill targeting over the acting units in slot (= id) order:
     each picks the in-range enemy with HP left maximising dpf / HP left, then reserves its damage."""
@@ -362,7 +328,7 @@ def _nok_targets(p, utype, hp, ws):
             hp_rem[best_j] -= SCRIPT_DAMAGE[utype[p, u]]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _mix(h):
     """splitmix64 finaliser (the native random script's counter-based generator)."""
     h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
@@ -370,7 +336,7 @@ def _mix(h):
     return h ^ (h >> np.uint64(31))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _random_action(p, u, utype, draw, ws):
     """A uniformly random legal action, drawn from the 64-bit value ``draw``."""
     cx, cy, alive, can_atk, move_ok = ws[0], ws[1], ws[5], ws[7], ws[8]
@@ -408,7 +374,7 @@ def _random_action(p, u, utype, draw, ws):
     return PASS_ACTION
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def choose_actions(script, p, utype, x, y, hp, rng_base, ws):
     """Fill ``ws`` actions row ``p`` with the script's action for every acting unit."""
     cx, cy, alive, acting, can_atk = ws[0], ws[1], ws[5], ws[6], ws[7]
@@ -440,57 +406,56 @@ def choose_actions(script, p, utype, x, y, hp, rng_base, ws):
                 if k < best:
                     best = k
         weakest = min(best & SLOT_MASK, n - 1)
+    attack_family = script <= ATTACK_DPS or script == KITER or script == KITER_DPS
+    kind = 0 if (script == ATTACK_CLOSEST or script == KITER) else (1 if script == ATTACK_WEAKEST else 2)
+    kites = script == KITER or script == KITER_DPS or script == KITER_NOKDPS
+    # Each helper has one call site below, so inlining them all keeps the kernel small.
     for u in range(n):
         if not acting[p, u]:
             actions[p, u] = PASS_ACTION
             continue
-        if script <= ATTACK_DPS or script == KITER or script == KITER_DPS:
-            if script == ATTACK_CLOSEST or script == KITER:
-                kind = 0
-            elif script == ATTACK_WEAKEST:
-                kind = 1
-            else:
-                kind = 2
+        a = -1
+        if attack_family:
             j = _attack_target(kind, p, u, utype, hp, ws)
             if j >= 0:
                 a = ATTACK_BASE + j
-            elif script <= ATTACK_DPS:
-                a = _approach_or_reload(p, u, utype, x, y, ws)
-            else:
-                a = _kite(p, u, utype, x, y, ws)
-        elif script == NOKDPS:
+        elif script == NOKDPS or script == KITER_NOKDPS:
             if nok[u] >= 0:
                 a = ATTACK_BASE + nok[u]
-            else:
-                a = _approach_or_reload(p, u, utype, x, y, ws)
-        elif script == KITER_NOKDPS:
-            if nok[u] >= 0:
-                a = ATTACK_BASE + nok[u]
-            elif not can_atk[p, u] and _in_own_range(p, u, closest_enemy(p, u, ws), utype, ws):
-                a = RELOAD_ACTION
-            else:
-                a = _kite(p, u, utype, x, y, ws)
-        elif script == CLUSTER:
-            code, found = move_toward(p, u, cluster_x, cluster_y, x, y, ws)
-            a = code if found else first_legal_action(p, u, utype, ws)
-        elif script == ATTACK_WEAKEST_GLOBAL:
-            if _in_own_range(p, u, weakest, utype, ws):
-                a = ATTACK_BASE + weakest if can_atk[p, u] else RELOAD_ACTION
-            else:
-                code, found = move_toward(p, u, cx[q, weakest], cy[q, weakest], x, y, ws)
-                a = code if found else first_legal_action(p, u, utype, ws)
         elif script == RANDOM:
             draw = _mix(rng_base + np.uint64(p * 1024 + u + 1) * np.uint64(0x9E3779B97F4A7C15))
             a = _random_action(p, u, utype, draw, ws)
+        if a >= 0:
+            actions[p, u] = a
+            continue
+        # No attack: RELOAD, or a move toward (or, kiting, away from) a point, else the first
+        # legal action.
+        away = False
+        if script == CLUSTER:
+            tx, ty = cluster_x, cluster_y
         else:
-            a = first_legal_action(p, u, utype, ws)
+            c = weakest if script == ATTACK_WEAKEST_GLOBAL else closest_enemy(p, u, ws)
+            in_range = _in_own_range(p, u, c, utype, ws)
+            tx, ty = cx[q, c], cy[q, c]
+            if script == ATTACK_WEAKEST_GLOBAL:
+                if in_range:
+                    a = ATTACK_BASE + c if can_atk[p, u] else RELOAD_ACTION
+            elif kites:
+                if script == KITER_NOKDPS and in_range and not can_atk[p, u]:
+                    a = RELOAD_ACTION
+                away = in_range
+            elif in_range and not can_atk[p, u]:
+                a = RELOAD_ACTION
+        if a < 0:
+            code, found = best_move(away, p, u, tx, ty, x, y, ws[8])
+            a = code if found else first_legal_action(p, u, utype, ws)
         actions[p, u] = a
 
 
 # ----------------------------------------------------------------------------- applying a turn
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _apply_player(p, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, overkill_pass, ws):
     """``GameState::makeMoves`` for one side: timers, moves, and the damage it deals (added to
     ws damage-taken of the enemy; HP changes wait until both sides have acted)."""
@@ -563,7 +528,7 @@ def _apply_player(p, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_att
         t_attack[p, u] = new_ta
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev_hp_sum, overkill_pass, ws):
     """``apply_actions`` + ``finish_turn`` for game ``g`` (views [2, U] of its unit fields), with
     the actions in ``ws`` and the context from ``prepare_turn``."""
@@ -592,7 +557,7 @@ def apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, t
     stale[g] = stale[g] + 1 if same else 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def player_dead(utype, hp, p):
     for s in range(hp.shape[1]):
         if hp[p, s] > 0 and SCRIPT_DAMAGE[utype[p, s]] > 0:
@@ -600,7 +565,7 @@ def player_dead(utype, hp, p):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def game_over(utype, hp, stale, turn, stalemate_limit, max_turns):
     """A side dead, more than ``stalemate_limit`` turns without HP change, or the turn cap."""
     return (
@@ -648,21 +613,31 @@ def ltd2_eval(utype, hp, ltd2_total):
 
 
 @njit(cache=True)
-def play_turn(g, fields, time, turn, stale, prev_hp_sum, walkable, script0, script1, overkill_pass, seed, game_id, ws):
-    """One decision turn of game ``g`` with two scripts. Returns the number of acting units."""
-    utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
-    ut, ug, xg, yg = utype[g], uid[g], x[g], y[g]
-    pxg, pyg, tag, lg, hg, tmg, tkg = px[g], py[g], t_act[g], last[g], hp[g], t_move[g], t_attack[g]
-    n_acting = prepare_turn(time[g], ut, xg, yg, pxg, pyg, tag, lg, hg, tmg, tkg, walkable, ws)
-    rng_base = np.uint64(0)
-    if script0 == RANDOM or script1 == RANDOM:
-        rng_base = _mix(_mix(np.uint64(seed) ^ _mix(np.uint64(game_id) + np.uint64(1))) + np.uint64(turn[g]))
-    if script0 >= 0:
-        choose_actions(script0, 0, ut, xg, yg, hg, rng_base, ws)
-    if script1 >= 0:
-        choose_actions(script1, 1, ut, xg, yg, hg, rng_base ^ np.uint64(0x5555555555555555), ws)
-    apply_turn(g, ut, ug, xg, yg, pxg, pyg, tag, lg, hg, tmg, tkg, time, turn, stale, prev_hp_sum, overkill_pass, ws)
-    return n_acting
+def _rng_base(seed, game_id, turn):
+    return _mix(_mix(np.uint64(seed) ^ _mix(np.uint64(game_id) + np.uint64(1))) + np.uint64(turn))
+
+
+@njit(cache=True)
+def play_game(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+              prev_hp_sum, walkable, script0, script1, overkill_pass, stalemate_limit, max_turns,
+              turn_budget, seed, game_id, ws):
+    """Play game ``g`` (views [2, U] of its unit fields) until it is over or has played
+    ``turn_budget`` turns (-1: no budget). Returns the number of unit actions issued."""
+    n_actions = 0
+    played = 0
+    while not game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
+        if turn_budget >= 0 and played >= turn_budget:
+            break
+        n_actions += prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+        rng_base = np.uint64(0)
+        if script0 == RANDOM or script1 == RANDOM:
+            rng_base = _rng_base(seed, game_id, turn[g])
+        choose_actions(script0, 0, utype, x, y, hp, rng_base, ws)
+        choose_actions(script1, 1, utype, x, y, hp, rng_base ^ np.uint64(0x5555555555555555), ws)
+        apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+                   prev_hp_sum, overkill_pass, ws)
+        played += 1
+    return n_actions
 
 
 @njit(cache=True, parallel=True)
@@ -670,21 +645,20 @@ def play_games(fields, time, turn, stale, prev_hp_sum, ltd2_total, walkable, scr
                overkill_pass, stalemate_limit, max_turns, turn_budget, seed, game_ids, n_chunks,
                winner_out, ltd2_out, actions_out):
     """Play every game of the batch until it is over or has played ``turn_budget`` more turns
-    (-1: no budget), game ``g`` with script codes ``script0[g]`` and ``script1[g]``, in parallel over ``n_chunks`` strided chunks of games. Writes the winner,
-    the final LTD2 evaluation and adds the unit actions issued to the outputs."""
-    utype, hp = fields[0], fields[8]
+    (-1: no budget), game ``g`` with script codes ``script0[g]`` and ``script1[g]``, in parallel
+    over ``n_chunks`` strided chunks of games. Writes the winner and the final LTD2 evaluation
+    and adds the unit actions issued to the outputs."""
+    utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
     n_games = hp.shape[0]
     n_slots = hp.shape[2]
     for c in prange(n_chunks):
         ws = make_workspace(n_slots)
         for g in range(c, n_games, n_chunks):
-            played = 0
-            while not game_over(utype[g], hp[g], stale[g], turn[g], stalemate_limit, max_turns):
-                if turn_budget >= 0 and played >= turn_budget:
-                    break
-                actions_out[g] += play_turn(g, fields, time, turn, stale, prev_hp_sum, walkable,
-                                            script0[g], script1[g], overkill_pass, seed, game_ids[g], ws)
-                played += 1
+            actions_out[g] += play_game(
+                g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
+                t_attack[g], time, turn, stale, prev_hp_sum, walkable, script0[g], script1[g],
+                overkill_pass, stalemate_limit, max_turns, turn_budget, seed, game_ids[g], ws,
+            )
             winner_out[g] = winner(utype[g], hp[g])
             ltd2_out[g] = ltd2_eval(utype[g], hp[g], ltd2_total[g])
 
@@ -699,7 +673,7 @@ def step_one(g, fields, time, turn, stale, prev_hp_sum, walkable, script0, scrip
     utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
     n_acting = prepare_turn(time[g], utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g],
                             t_move[g], t_attack[g], walkable, ws)
-    rng_base = _mix(_mix(np.uint64(seed) ^ _mix(np.uint64(game_id) + np.uint64(1))) + np.uint64(turn[g]))
+    rng_base = _rng_base(seed, game_id, turn[g])
     scripts = (script0, script1)
     for p in range(2):
         if scripts[p] >= 0:
