@@ -16,7 +16,14 @@ from hybridmarl.engine import native
 from hybridmarl.engine.battle import run_battles as jax_run_battles
 from hybridmarl.engine.native import parity as P
 from hybridmarl.engine.scenarios import InputError, named_scenario, parse_states_document
-from hybridmarl.engine.state import UnitSpec, build_batch, build_state, make_rules, stack_states
+from hybridmarl.engine.state import (
+    UnitSpec,
+    build_batch,
+    build_batch_arrays,
+    build_state,
+    make_rules,
+    stack_states,
+)
 
 
 def _assert_same_tree(a, b):
@@ -157,3 +164,22 @@ def test_import_order(first):
 def test_jax_still_usable_after_native_run():
     native.run_battles(named_scenario("m2v2").generate(3, 0), "kiter", "kiter", progress=False)
     assert float(jax.jit(lambda x: x + 1)(1.0)) == 2.0
+
+
+@pytest.mark.parametrize("name", ["m5v5", "m3v7", "m18v20-apart"])
+def test_generate_arrays_equals_generate(name):
+    """The fast array generator draws the same states as ``Scenario.generate``."""
+    sc = named_scenario(name)
+    want = build_batch_arrays(sc.generate(40, 3))
+    got = sc.generate_arrays(40, 3)
+    assert got.keys() == want.keys()
+    for k in want:
+        assert got[k].dtype == want[k].dtype, k
+        np.testing.assert_array_equal(got[k], want[k], err_msg=k)
+
+
+def test_run_battles_from_native_arrays_equals_unit_lists():
+    sc = named_scenario("m4v6")
+    a = native.run_battles(sc.generate(20, 1), "nokdps", "kiter", progress=False)
+    b = native.run_battles(native.from_arrays(sc.generate_arrays(20, 1)), "nokdps", "kiter", progress=False)
+    assert a.to_document() == b.to_document()

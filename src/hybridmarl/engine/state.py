@@ -234,6 +234,16 @@ def build_batch_arrays(
             utype[k, p, s], uid[k, p, s], x[k, p, s], y[k, p, s] = t, i, u.x, u.y
             hp[k, p, s] = max_hp_table[t]
             count[p] += 1
+    return batch_arrays_from_layout(utype, uid, x, y, hp)
+
+
+def batch_arrays_from_layout(
+    utype: np.ndarray, uid: np.ndarray, x: np.ndarray, y: np.ndarray, hp: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Start-state arrays (``build_batch_arrays``' result) from the laid-out unit slots: int32
+    ``[B, 2, U]`` types, ids (padding ids from ``PAD_ID_BASE``), positions and full HP (0 for
+    padding)."""
+    b, _, n = hp.shape
     present = hp > 0
     max_hp = U.TABLES.max_hp[utype].astype(np.float32)
     dpf = U.TABLES.dpf[utype]

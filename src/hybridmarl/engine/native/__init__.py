@@ -34,6 +34,7 @@ from hybridmarl.engine.native.play import (  # noqa: E402
 from hybridmarl.engine.native.state import (  # noqa: E402
     NativeStates,
     build_native_states,
+    from_arrays,
     from_jax,
     to_jax,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "apply_actions",
     "build_native_states",
     "compile_kernels",
+    "from_arrays",
     "from_jax",
     "play",
     "record_trace",

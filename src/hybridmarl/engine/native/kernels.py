@@ -13,6 +13,10 @@ Script codes (``SCRIPT_CODES``) select a player at run time, so one compiled pro
 pair of scripts and both overkill modes.
 """
 
+# The kernels keep explicit loops and == chains: Numba compiles them to plain branches, while
+# generator expressions (all/any) and tuple membership are slower or unsupported in nopython code.
+# ruff: noqa: SIM102, SIM109, SIM110
+
 from __future__ import annotations
 
 import numpy as np

@@ -21,7 +21,7 @@ import numpy as np
 from hybridmarl.engine import game
 from hybridmarl.engine import rules as R
 from hybridmarl.engine import units as U
-from hybridmarl.engine.native.play import play, advance
+from hybridmarl.engine.native.play import advance, play
 from hybridmarl.engine.native.state import NativeStates, from_jax, to_jax
 from hybridmarl.engine.scripts import SCRIPTS, get_script
 from hybridmarl.engine.state import GameState, Rules, UnitSpec, is_walkable_np
@@ -122,8 +122,8 @@ def lockstep(
 def games_over(states: NativeStates, rules: Rules) -> np.ndarray:
     """bool [B]: ``rules.game_over`` of every game, in NumPy."""
     can_hurt = (states.hp > 0) & (U.TABLES.script_damage[states.utype.clip(0, U.NUM_TYPES - 1)] > 0)
-    dead = ~can_hurt.any(axis=2)
-    return dead.any(axis=1) | (states.stale > rules.stalemate_limit) | (states.turn >= rules.max_turns)
+    dead: np.ndarray = ~np.any(can_hurt, axis=2)
+    return np.any(dead, axis=1) | (states.stale > rules.stalemate_limit) | (states.turn >= rules.max_turns)
 
 
 @dataclass

@@ -22,7 +22,7 @@ from hybridmarl.engine.native import kernels as K
 from hybridmarl.engine.native.state import NativeStates, build_native_states
 from hybridmarl.engine.scenarios import InputError
 from hybridmarl.engine.scripts import canonical_name
-from hybridmarl.engine.state import Rules, UnitSpec, make_rules
+from hybridmarl.engine.state import PAD_ID_BASE, Rules, UnitSpec, make_rules
 from hybridmarl.engine.trace import Trace, TurnRecord
 
 #: Seconds the first ``compile_kernels`` call took in this process (None before it ran).
@@ -256,7 +256,7 @@ def unit_hp_lists(final_hp: np.ndarray, uid: np.ndarray, sizes: Sequence[int]) -
 
 
 def run_battles(
-    states: Sequence[Sequence[UnitSpec]],
+    states: Sequence[Sequence[UnitSpec]] | NativeStates,
     p0: str,
     p1: str,
     *,
@@ -267,17 +267,24 @@ def run_battles(
     threads: int | None = None,
 ) -> BattleResults:
     """``engine.battle.run_battles`` on the native engine: same arguments, same result type and
-    values (``batch_size`` only sets how many games run per kernel call, i.e. progress steps)."""
+    values (``batch_size`` only sets how many games run per kernel call, i.e. progress steps).
+    ``states`` may also be a ready ``NativeStates`` batch (e.g. ``from_arrays`` of
+    ``Scenario.generate_arrays``), which skips building per-unit objects."""
     try:
         p0c, p1c = canonical_name(p0), canonical_name(p1)
     except KeyError as e:
         raise InputError(str(e.args[0])) from None
-    if not states:
+    if (states.batch_size if isinstance(states, NativeStates) else len(states)) == 0:
         raise InputError("no start states to play")
     rules = make_rules() if rules is None else rules
-    native = build_native_states(states)
+    if isinstance(states, NativeStates):
+        native = states.copy()
+        sizes = (native.uid < PAD_ID_BASE).sum(axis=(1, 2)).tolist()
+    else:
+        native = build_native_states(states)
+        sizes = [len(s) for s in states]
     compile_kernels(quiet=not progress)
-    n = len(states)
+    n = native.batch_size
     bar = None
     if progress:
         from hybridmarl.engine.battle import _progress
@@ -304,7 +311,7 @@ def run_battles(
         winner=cat("winner"),
         final_time=cat("final_time"),
         turns=cat("turns"),
-        unit_hp=unit_hp_lists(cat("hp"), native.uid, [len(s) for s in states]),
+        unit_hp=unit_hp_lists(cat("hp"), native.uid, sizes),
         ltd2_eval=cat("ltd2_eval"),
         unit_actions=cat("unit_actions"),
     )

@@ -88,6 +88,14 @@ def _native(arrays: dict[str, np.ndarray]) -> NativeStates:
     return NativeStates(**{f: np.ascontiguousarray(arrays[f], dtype=_DTYPES[f]) for f in NativeStates._fields})
 
 
+def from_arrays(arrays: dict[str, np.ndarray]) -> NativeStates:
+    """Native states from batch arrays such as ``state.build_batch_arrays`` or
+    ``Scenario.generate_arrays`` return (checked like ``from_jax``)."""
+    out = _native(arrays)
+    check_representable(out)
+    return out
+
+
 def from_jax(state: GameState) -> NativeStates:
     """NumPy copy of a ``GameState`` (single, ``hp`` [2, U], or batched, [B, 2, U])."""
     batched = np.ndim(state.hp) == 3
