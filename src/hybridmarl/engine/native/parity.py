@@ -131,11 +131,15 @@ class GameComparison:
     games: int
     mismatches: int
     first_mismatch: str | None
+    #: Games whose LTD2 evaluation differs by exactly 1 (not mismatches): the native engine sums
+    #: a side's sqrt(HP) * dpf in float32 unit by unit like SparCraft, XLA's reduction may sum in
+    #: another order, and int(1000 * sum / total) can then land one lower or higher.
+    ltd2_off_by_one: int = 0
 
 
 def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p1: Sequence[str]) -> GameComparison:
     """Play every game to its end on both engines; compare the final states and results
-    (winner, final frame, turns, HP, LTD2 evaluation, unit actions)."""
+    (winner, final frame, turns, HP, unit actions exactly; LTD2 evaluation within 1)."""
     final_ref, res_ref = _jax_game(game.rules_static(rules))(
         to_jax(states), jnp.asarray(script_choices(p0)), jnp.asarray(script_choices(p1)), rules.walkable
     )
@@ -145,11 +149,10 @@ def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p
     for f in NativeStates._fields:
         a, b = getattr(final, f), getattr(ref, f)
         bad |= (a != b).reshape(states.batch_size, -1).any(axis=1)
-    for ours_field, ref_field in (
-        ("winner", "winner"), ("final_time", "final_time"), ("turns", "turns"),
-        ("ltd2_eval", "ltd2_eval"), ("unit_actions", "unit_actions"),
-    ):
-        bad |= np.asarray(getattr(res, ours_field)) != np.asarray(getattr(res_ref, ref_field))
+    for name in ("winner", "final_time", "turns", "unit_actions"):
+        bad |= np.asarray(getattr(res, name)) != np.asarray(getattr(res_ref, name))
+    ltd2_gap = np.abs(np.asarray(res.ltd2_eval, np.int64) - np.asarray(res_ref.ltd2_eval, np.int64))
+    bad |= ltd2_gap > 1
     first = None
     if bad.any():
         g = int(np.argmax(bad))
@@ -160,7 +163,7 @@ def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p
             first += "final results differ, states equal turn by turn"
         except AssertionError as e:
             first += str(e)
-    return GameComparison(states.batch_size, int(bad.sum()), first)
+    return GameComparison(states.batch_size, int(bad.sum()), first, int((ltd2_gap == 1).sum()))
 
 
 def random_walkable(rng: np.random.Generator, width: int = 64, height: int = 40, walls: int = 6) -> np.ndarray:

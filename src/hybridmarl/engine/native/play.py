@@ -114,7 +114,9 @@ def _script_codes(names: str | Sequence[str]) -> np.ndarray | int:
 
 
 def _walkable(rules: Rules) -> np.ndarray:
-    return np.ascontiguousarray(np.asarray(rules.walkable), dtype=np.bool_)
+    # A writable copy: NumPy views of JAX arrays are read-only, a distinct Numba type that
+    # would compile the kernels a second time.
+    return np.array(rules.walkable, dtype=np.bool_, order="C", copy=True)
 
 
 def play(

@@ -85,7 +85,11 @@ def check_representable(states: NativeStates) -> None:
 
 
 def _native(arrays: dict[str, np.ndarray]) -> NativeStates:
-    return NativeStates(**{f: np.ascontiguousarray(arrays[f], dtype=_DTYPES[f]) for f in NativeStates._fields})
+    # Always a writable copy: kernels update states in place, and NumPy views of JAX arrays are
+    # read-only (a distinct Numba type, too).
+    return NativeStates(
+        **{f: np.array(arrays[f], dtype=_DTYPES[f], order="C", copy=True) for f in NativeStates._fields}
+    )
 
 
 def from_arrays(arrays: dict[str, np.ndarray]) -> NativeStates:
