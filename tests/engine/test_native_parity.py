@@ -59,7 +59,7 @@ def test_lockstep_k_turns_open_map_overkill_classic():
     [("classic", 12, False, 2), ("pass", 12, True, 3)],
 )
 def test_whole_games_every_pair(overkill, max_side, walls, seed):
-    """Whole games: final state, winner, final frame, turns and unit actions (LTD2 within 1)."""
+    """Whole games: final state, winner, final frame, turns and unit actions (LTD2 within 2)."""
     rng = np.random.default_rng(seed)
     grid = P.random_walkable(rng) if walls else None
     rules = make_rules(grid, overkill=overkill)
@@ -75,8 +75,9 @@ def test_run_battles_equals_jax_m30v30():
     want = jax_run_battles(states, "attack-closest", "attack-weakest", progress=False)
     got = native.run_battles(states, "attack-closest", "attack-weakest", progress=False)
     assert got.to_document() == want.to_document()
-    # LTD2 sums float32 terms; XLA's reduction order may differ from the unit-by-unit sum.
-    assert np.abs(got.ltd2_eval.astype(np.int64) - want.ltd2_eval).max() <= 1
+    # LTD2 sums float32 terms; XLA's reduction order may differ from the unit-by-unit sum, so
+    # each side's score may be 1 off, and the evaluation (their difference) up to 2.
+    assert np.abs(got.ltd2_eval.astype(np.int64) - want.ltd2_eval).max() <= 2
     np.testing.assert_array_equal(got.unit_actions, want.unit_actions)
 
 

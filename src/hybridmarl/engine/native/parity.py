@@ -131,15 +131,17 @@ class GameComparison:
     games: int
     mismatches: int
     first_mismatch: str | None
-    #: Games whose LTD2 evaluation differs by exactly 1 (not mismatches): the native engine sums
-    #: a side's sqrt(HP) * dpf in float32 unit by unit like SparCraft, XLA's reduction may sum in
-    #: another order, and int(1000 * sum / total) can then land one lower or higher.
-    ltd2_off_by_one: int = 0
+    #: Games whose LTD2 evaluation differs by 1 or 2 (not mismatches): the native engine sums a
+    #: side's sqrt(HP) * dpf in float32 unit by unit like SparCraft, XLA's reduction may sum in
+    #: another order (it even depends on the batch size), so each side's int(1000 * sum / total)
+    #: can land one lower or higher, and the evaluation is the difference of the two sides.
+    ltd2_rounding: int = 0
 
 
 def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p1: Sequence[str]) -> GameComparison:
     """Play every game to its end on both engines; compare the final states and results
-    (winner, final frame, turns, HP, unit actions exactly; LTD2 evaluation within 1)."""
+    (winner, final frame, turns, HP, unit actions exactly; LTD2 evaluation within 2, i.e.
+    each side's LTD2 within 1)."""
     final_ref, res_ref = _jax_game(game.rules_static(rules))(
         to_jax(states), jnp.asarray(script_choices(p0)), jnp.asarray(script_choices(p1)), rules.walkable
     )
@@ -152,7 +154,7 @@ def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p
     for name in ("winner", "final_time", "turns", "unit_actions"):
         bad |= np.asarray(getattr(res, name)) != np.asarray(getattr(res_ref, name))
     ltd2_gap = np.abs(np.asarray(res.ltd2_eval, np.int64) - np.asarray(res_ref.ltd2_eval, np.int64))
-    bad |= ltd2_gap > 1
+    bad |= ltd2_gap > 2
     first = None
     if bad.any():
         g = int(np.argmax(bad))
@@ -163,7 +165,7 @@ def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p
             first += "final results differ, states equal turn by turn"
         except AssertionError as e:
             first += str(e)
-    return GameComparison(states.batch_size, int(bad.sum()), first, int((ltd2_gap == 1).sum()))
+    return GameComparison(states.batch_size, int(bad.sum()), first, int(((ltd2_gap >= 1) & (ltd2_gap <= 2)).sum()))
 
 
 def random_walkable(rng: np.random.Generator, width: int = 64, height: int = 40, walls: int = 6) -> np.ndarray:
