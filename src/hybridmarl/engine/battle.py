@@ -23,10 +23,12 @@ from hybridmarl.engine.state import (
     GameState,
     Rules,
     UnitSpec,
-    build_state,
+    build_batch,
     make_rules,
-    stack_states,
 )
+
+#: Engine backends ``run_battles`` can play on (``docs/engine-backends.md``).
+ENGINES = ("jax", "native")
 
 
 @dataclass
@@ -77,9 +79,10 @@ class BattleResults:
 
 
 def pad_states(states: Sequence[Sequence[UnitSpec]]) -> tuple[GameState, int]:
-    """Build and stack states, all padded to the largest side of any of them."""
+    """Build and stack states, all padded to the largest side of any of them (built in NumPy in
+    one pass; equal to ``stack_states`` of ``build_state`` per state)."""
     slots = max(max(sum(1 for u in s if u.player == p) for p in (0, 1)) for s in states)
-    return stack_states([build_state(s, slots) for s in states]), slots
+    return build_batch(states, slots), slots
 
 
 def run_battles(
@@ -91,12 +94,21 @@ def run_battles(
     rules: Rules | None = None,
     batch_size: int = 1024,
     progress: bool = True,
+    engine: str = "jax",
 ) -> BattleResults:
     """Play every start state once, ``p0`` as player 0 and ``p1`` as player 1.
 
     Games run in batches of ``batch_size`` through one compiled program (``game.play_batch``);
     ``seed`` only matters for the ``random`` script (combat itself is deterministic).
+    ``engine="native"`` plays on the Numba backend (``engine.native.run_battles``): the same
+    results, except the ``random`` script's draws.
     """
+    if engine == "native":
+        from hybridmarl.engine import native
+
+        return native.run_battles(states, p0, p1, seed=seed, rules=rules, progress=progress)
+    if engine != "jax":
+        raise InputError(f"unknown engine {engine!r} (known: {', '.join(ENGINES)})")
     try:
         p0c, p1c = canonical_name(p0), canonical_name(p1)
     except KeyError as e:

@@ -34,8 +34,11 @@ from hybridmarl.engine import units as U
 from hybridmarl.engine.state import (
     DEFAULT_MAP_HEIGHT_PX,
     DEFAULT_MAP_WIDTH_PX,
+    PAD_ID_BASE,
     WALK_TILE,
     UnitSpec,
+    batch_arrays_from_layout,
+    build_batch_arrays,
     default_walkable,
     is_walkable_np,
 )
@@ -270,6 +273,43 @@ class Scenario:
             else:
                 raise InputError(f"scenario {self.name!r}: unknown kind {self.kind!r}")
         return out[:n]
+
+
+    def generate_arrays(self, n: int, seed: int) -> dict[str, np.ndarray]:
+        """The batch arrays of ``generate(n, seed)`` (``state.build_batch_arrays``), drawn from the
+        same random stream without building per-unit objects (much faster for large ``n``)."""
+        if self.kind != "disks":
+            return build_batch_arrays(self.generate(n, seed))
+        rng = np.random.default_rng(np.random.SeedSequence([seed, _stable_hash(self.name)]))
+        types0 = [U.type_id(t) for t in _expand(self.side0)]
+        types1 = [U.type_id(t) for t in _expand(self.side1)]
+        n0, n1 = len(types0), len(types1)
+        slots = max(n0, n1, 1)
+        pos = np.zeros((n, 2, slots, 2), np.int64)
+        for k in range(n):
+            pos[k, 0, :n0] = disk_points(rng, n0, self.center0[0], self.center0[1], self.radius0)
+            pos[k, 1, :n1] = disk_points(rng, n1, self.center1[0], self.center1[1], self.radius1)
+        # Ids of the interleaved unit list (P0, P1, P0, ...; leftovers at the end), as _alternate.
+        ids = np.tile(PAD_ID_BASE + np.arange(slots, dtype=np.int32), (2, 1))
+        utype_row = np.zeros((2, slots), np.int32)
+        next_id = 0
+        for i in range(max(n0, n1)):
+            for p, types in ((0, types0), (1, types1)):
+                if i < len(types):
+                    ids[p, i] = next_id
+                    utype_row[p, i] = types[i]
+                    next_id += 1
+        present = np.zeros((2, slots), bool)
+        present[0, :n0] = True
+        present[1, :n1] = True
+        hp_row = np.where(present, U.TABLES.max_hp[utype_row], 0).astype(np.int32)
+        return batch_arrays_from_layout(
+            np.broadcast_to(utype_row, (n, 2, slots)).copy(),
+            np.broadcast_to(ids, (n, 2, slots)).copy(),
+            pos[..., 0].astype(np.int32),
+            pos[..., 1].astype(np.int32),
+            np.broadcast_to(hp_row, (n, 2, slots)).copy(),
+        )
 
 
 # ----------------------------------------------------------------------------- geometry rules
