@@ -32,6 +32,26 @@ def test_battle_scenario_smoke(tmp_path, capsys):
     assert doc["summary"]["battles"] == 6
 
 
+@pytest.mark.parametrize("scenario", ["m5v5", "m4v6-apart"])
+def test_battle_engines_agree(tmp_path, scenario):
+    """--engine native and --engine jax write the same results document (every battle's
+    winner, final frame, turns and unit HP), both directions with --swap."""
+    docs = {}
+    for engine in ("native", "jax"):
+        out = tmp_path / f"{engine}.json"
+        argv = ["battle", "--scenario", scenario, "--n", "40", "--seed", "3", "--swap", "--engine", engine, "--out", str(out), "--no-progress"]
+        assert main(argv) == 0
+        docs[engine] = json.loads(out.read_text())
+    assert docs["native"] == docs["jax"]
+
+
+def test_battle_engine_auto_is_native_on_cpu():
+    from hybridmarl.cli.engine import resolve_engine
+
+    assert resolve_engine("auto") == "native"  # the test machines have no GPU
+    assert resolve_engine("jax") == "jax"
+
+
 def test_battle_states_file_matches_reference(tmp_path):
     """Start states from a JSON file (extra keys ignored), results in input order."""
     states = json.loads((TRACE_DIR / "trace_states.json").read_text())

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Any, Literal
 
 import tyro
 
@@ -44,7 +44,7 @@ class BattleConfig:
     out: str | None = None
     """Write per-battle results as JSON here (atomically; nothing is written on bad input)."""
     batch_size: int = 1024
-    """Games played at once in one compiled program."""
+    """Games played at once in one compiled program (jax engine)."""
     overkill: Annotated[str, tyro.conf.arg(help_behavior_hint="pass | classic")] = "pass"
     """An attack on a target killed earlier in the same turn: 'pass' (SparCraft DC-HEAD: the
     attacker PASSes) or 'classic' (DC-CLASSIC: cooldown spent, no damage)."""
@@ -58,6 +58,12 @@ class BattleConfig:
     """Show a progress bar."""
     swap: bool = False
     """Also play every state with the scripts swapped and report both directions."""
+    engine: Literal["auto", "native", "jax"] = "auto"
+    """Engine backend of scripted battles: 'native' (Numba, compiled for the CPU; the first run
+    on a machine compiles it once, about a minute), 'jax' (the reference backend, for GPUs), or
+    'auto': native when JAX's default device is a CPU, else jax. Both give identical results,
+    except the 'random' script's draws (docs/engine-backends.md). Search players always decide
+    on the host."""
 
 
 @dataclass(frozen=True)
@@ -143,13 +149,21 @@ def run_battle(cfg: BattleConfig) -> int:
         )
     except ValueError as e:
         raise InputError(str(e)) from None
+    engine = resolve_engine(cfg.engine)
+    states: Any
     if cfg.states:
         states = load_states_file(cfg.states, walkable=walkable)
         label = cfg.states
     else:
         sc = resolve_scenario(cfg.scenario, cfg.scenario_file)
-        states = sc.generate(cfg.n, cfg.seed)
         label = f"{sc.name} (n={cfg.n}, seed={cfg.seed})"
+        if engine == "native" and walkable is None and not any(search):
+            # The same states as sc.generate, drawn straight into arrays: no per-unit objects.
+            from hybridmarl.engine.native import from_arrays
+
+            states = from_arrays(sc.generate_arrays(cfg.n, cfg.seed))
+        else:
+            states = sc.generate(cfg.n, cfg.seed)
         if walkable is not None:
             from hybridmarl.engine.scenarios import parse_states_document, states_to_document
 
@@ -164,6 +178,10 @@ def run_battle(cfg: BattleConfig) -> int:
     else:
 
         def play(a: str, b: str):
+            if engine == "native":
+                from hybridmarl.engine import native
+
+                return native.run_battles(states, a, b, seed=cfg.seed, rules=rules, progress=cfg.progress)
             return run_battles(states, a, b, seed=cfg.seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)
 
     results = [play(cfg.p0, cfg.p1)]
@@ -177,6 +195,16 @@ def run_battle(cfg: BattleConfig) -> int:
         write_json_atomic(cfg.out, doc, indent=None)
         print(f"results written to {cfg.out}")
     return 0
+
+
+def resolve_engine(name: str) -> str:
+    """'native' or 'jax' for a --engine value: 'auto' is native when JAX's default device is a
+    CPU (the native backend is the faster one there) and jax otherwise."""
+    if name != "auto":
+        return name
+    import jax
+
+    return "native" if jax.default_backend() == "cpu" else "jax"
 
 
 def _print_table(label: str, results) -> None:
