@@ -45,11 +45,19 @@ class BattleConfig:
     """Write per-battle results as JSON here (atomically; nothing is written on bad input)."""
     batch_size: int = 1024
     """Games played at once in one compiled program (jax engine)."""
-    overkill: Annotated[str, tyro.conf.arg(help_behavior_hint="pass | classic")] = "pass"
+    setting: Annotated[str, tyro.conf.arg(help_behavior_hint="sparcraft | paper")] = "sparcraft"
+    """Named setting (docs/engine.md#settings): the rules and the geometry of named scenarios.
+    'sparcraft': SparCraft's current rules (DC-HEAD), disks r=100 px centred 150 px apart.
+    'paper': the paper's (classic overkill, stalemate limit 200, a contact geometry calibrated
+    to the paper's demonstrator win rates, Table 1); --overkill and --stalemate-limit may not
+    contradict it."""
+    overkill: Annotated[str | None, tyro.conf.arg(help_behavior_hint="pass | classic")] = None
     """An attack on a target killed earlier in the same turn: 'pass' (SparCraft DC-HEAD: the
-    attacker PASSes) or 'classic' (DC-CLASSIC: cooldown spent, no damage)."""
-    stalemate_limit: int = 50
-    """End the game after more than this many turns without an HP change (DC-HEAD: 50)."""
+    attacker PASSes) or 'classic' (DC-CLASSIC: cooldown spent, no damage). Default: the
+    setting's."""
+    stalemate_limit: int | None = None
+    """End the game after more than this many turns without an HP change. Default: the
+    setting's (sparcraft: 50, DC-HEAD; paper: 200)."""
     max_turns: int = 20000
     """Turn cap (SparCraft SearchExperiment: 20,000 decision turns)."""
     map_file: str | None = None
@@ -133,6 +141,7 @@ def run_battle(cfg: BattleConfig) -> int:
     from hybridmarl.engine.scenarios import InputError, load_states_file, resolve_scenario
     from hybridmarl.engine.state import make_rules
     from hybridmarl.io import write_json_atomic
+    from hybridmarl.settings import resolve as resolve_setting
 
     search = [not _is_script(s) for s in (cfg.p0, cfg.p1)]
     for s, is_search in zip((cfg.p0, cfg.p1), search, strict=True):
@@ -142,10 +151,13 @@ def run_battle(cfg: BattleConfig) -> int:
         raise InputError("--n must be at least 1")
     if cfg.batch_size < 1:
         raise InputError("--batch-size must be at least 1")
+    setting, overkill, stalemate_limit = resolve_setting(
+        cfg.setting, overkill=cfg.overkill, stalemate_limit=cfg.stalemate_limit
+    )
     walkable = _load_map(cfg.map_file)
     try:
         rules = make_rules(
-            walkable, stalemate_limit=cfg.stalemate_limit, overkill=cfg.overkill, max_turns=cfg.max_turns
+            walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=cfg.max_turns
         )
     except ValueError as e:
         raise InputError(str(e)) from None
@@ -155,7 +167,7 @@ def run_battle(cfg: BattleConfig) -> int:
         states = load_states_file(cfg.states, walkable=walkable)
         label = cfg.states
     else:
-        sc = resolve_scenario(cfg.scenario, cfg.scenario_file)
+        sc = resolve_scenario(cfg.scenario, cfg.scenario_file, setting)
         label = f"{sc.name} (n={cfg.n}, seed={cfg.seed})"
         if engine == "native" and walkable is None and not any(search):
             # The same states as sc.generate, drawn straight into arrays: no per-unit objects.
@@ -184,6 +196,8 @@ def run_battle(cfg: BattleConfig) -> int:
                 return native.run_battles(states, a, b, seed=cfg.seed, rules=rules, progress=cfg.progress)
             return run_battles(states, a, b, seed=cfg.seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)
 
+    if setting.name != "sparcraft":
+        label += f", {setting.name} setting"
     results = [play(cfg.p0, cfg.p1)]
     if cfg.swap:
         results.append(play(cfg.p1, cfg.p0))
@@ -192,6 +206,7 @@ def run_battle(cfg: BattleConfig) -> int:
         doc = results[0].to_document()
         if cfg.swap:
             doc["swapped"] = results[1].to_document()
+        doc["setting"] = setting.name
         write_json_atomic(cfg.out, doc, indent=None)
         print(f"results written to {cfg.out}")
     return 0

@@ -32,7 +32,7 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import tyro
 
@@ -126,8 +126,12 @@ class EvalConfig:
     """Battles / episodes (Section 5.1: 100)."""
     seed: int = 0
     """Seed of the start states."""
+    setting: str | None = None
+    """Named setting (docs/engine.md#settings): 'sparcraft' or 'paper'; combat rules and
+    scenario geometry, traffic_junction p_arrive. Default: the run's; for --script, sparcraft."""
     p_arrive: float | None = None
-    """Traffic junction arrival probability (default: the run's, 0.2)."""
+    """Traffic junction arrival probability (default: the run's, or the setting's: 0.2 under
+    sparcraft)."""
     time_penalty: bool | None = None
     """Traffic junction: CommNet's -0.01·τ time penalty in the reported return (default: the
     run's setting; off for --script). The failure rate does not depend on it."""
@@ -135,6 +139,21 @@ class EvalConfig:
     """Print exactly one JSON object (W, R, their 95% intervals, ...) on stdout."""
     out: str | None = None
     """Also write the JSON here."""
+
+
+def apply_setting(spec: Any, setting: str | None, *, p_arrive: float | None = None) -> Any:
+    """``spec`` under ``setting`` (None: keep the spec's) with ``p_arrive`` where given;
+    ``SettingError`` (a ``UserError``) if they contradict each other."""
+    from hybridmarl.settings import check_options
+
+    s = check_options(spec.setting if setting is None else setting, p_arrive=p_arrive)
+    if p_arrive is not None:
+        p = float(p_arrive)
+    elif setting is not None and spec.env != "combat":
+        p = s.p_arrive
+    else:
+        p = spec.p_arrive
+    return dataclasses.replace(spec, setting=s.name, p_arrive=p)
 
 
 def run_eval(cfg: EvalConfig) -> int:
@@ -166,8 +185,7 @@ def run_eval(cfg: EvalConfig) -> int:
         trained_from = ""
     if cfg.scenario:
         spec = dataclasses.replace(spec, scenario=cfg.scenario)
-    if cfg.p_arrive is not None:
-        spec = dataclasses.replace(spec, p_arrive=cfg.p_arrive)
+    spec = apply_setting(spec, cfg.setting, p_arrive=cfg.p_arrive)
     if cfg.time_penalty is not None:
         spec = dataclasses.replace(spec, time_penalty=cfg.time_penalty)
     enemy_label = None
@@ -217,6 +235,7 @@ def run_eval(cfg: EvalConfig) -> int:
         scenario=spec.scenario if spec.env == "combat" else None,
         enemy=enemy_label,
         seed=cfg.seed,
+        setting=spec.setting,
     )
     if bundle is not None:
         res["episodes"] = bundle.meta.get("episodes")  # of the checkpoint evaluated
@@ -265,8 +284,11 @@ class DemosCollectConfig:
     """Games recorded in parallel."""
     gamma: float = 0.995
     """Discount of the recorded returns (Section 5.1)."""
-    p_arrive: float = 0.2
-    """Traffic junction arrival probability."""
+    setting: str = "sparcraft"
+    """Named setting (docs/engine.md#settings): 'sparcraft' or 'paper' (combat rules and scenario
+    geometry; traffic_junction p_arrive)."""
+    p_arrive: float | None = None
+    """Traffic junction arrival probability (default: the setting's; sparcraft: 0.2)."""
     time_penalty: bool = False
     """Traffic junction: record rewards and returns with CommNet's time penalty (-0.01·τ per car
     per step; as 'hybridmarl train --time-penalty'). The paper's reward has none."""
@@ -314,7 +336,8 @@ def run_demos_collect(cfg: DemosCollectConfig) -> int:
         enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
         spec = TaskSpec(env=env, scenario=cfg.scenario, enemy=enemy, max_turns=cfg.max_turns)
     else:
-        spec = TaskSpec(env=env, p_arrive=cfg.p_arrive, time_penalty=cfg.time_penalty)
+        spec = TaskSpec(env=env, time_penalty=cfg.time_penalty)
+    spec = apply_setting(spec, cfg.setting, p_arrive=cfg.p_arrive)
     ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma)
     path = D.save_dataset(ds, cfg.out)
     print(f"recorded {ds.size} observations ({int(ds.arrays['episode'].max()) + 1} episodes) of {demo} on {spec.label()} -> {path}")

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from hybridmarl.errors import UserError
+from hybridmarl.settings import get_setting
 
 #: The paper's Table 1 (W, R) of the demonstrator D and of "Ours", by (scenario, demonstrator).
 PAPER_TABLE1: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
@@ -56,6 +57,9 @@ class QuickstartConfig:
 
     scenario: str = "m5v5"
     """Combat scenario (paper Section 5.1: m5v5, m30v30, m18v20, m24v30)."""
+    setting: str = "sparcraft"
+    """Named setting (docs/engine.md#settings): 'sparcraft' (SparCraft's current rules) or
+    'paper' (the paper's rules and a start geometry calibrated to its demonstrator rows, Table 1)."""
     demonstrator: str = "attack-closest"
     """Demonstrator script A^D (the paper's c = attack-closest or w = attack-weakest)."""
     enemy: str | None = None
@@ -75,7 +79,8 @@ class QuickstartConfig:
     """Training episodes (default: the preset's)."""
     run_dir: str | None = None
     """Where everything is written (default runs/quickstart-<scenario>-<demonstrator>-s<seed>,
-    with -<preset> before -s<seed> for a preset other than quick). A finished run there is
+    with -<preset> before -s<seed> for a preset other than quick, and -<setting> for a setting
+    other than sparcraft). A finished run there is
     reused if it was made with the same settings, and refused otherwise."""
     replay_seed: int = 0
     """Which battle the replay GIF shows (its start-state seed)."""
@@ -83,10 +88,12 @@ class QuickstartConfig:
     """Show the training progress bar."""
 
 
-def default_run_dir(scenario: str, demonstrator: str, seed: int, preset: str = DEFAULT_PRESET) -> Path:
-    """The quickstart's run directory for these settings: every seed and preset has its own, so
-    a run of one is never taken for a run of another."""
-    suffix = "" if preset == DEFAULT_PRESET else f"-{preset}"
+def default_run_dir(
+    scenario: str, demonstrator: str, seed: int, preset: str = DEFAULT_PRESET, setting: str = "sparcraft"
+) -> Path:
+    """The quickstart's run directory for these settings: every seed, preset and setting has its
+    own, so a run of one is never taken for a run of another."""
+    suffix = ("" if preset == DEFAULT_PRESET else f"-{preset}") + ("" if setting == "sparcraft" else f"-{setting}")
     return Path("runs") / f"quickstart-{scenario}-{demonstrator}{suffix}-s{seed}"
 
 
@@ -146,7 +153,7 @@ def training_config(cfg: QuickstartConfig, demonstrator: str, enemy: str, run_di
     base = mod.PRESETS[cfg.preset]("combat")
     changes: dict[str, Any] = {
         "scenario": cfg.scenario, "demonstrator": demonstrator, "enemy": enemy, "seed": cfg.seed,
-        "run_dir": str(run_dir), "resume": resume, "progress": cfg.progress,
+        "setting": cfg.setting, "run_dir": str(run_dir), "resume": resume, "progress": cfg.progress,
     }
     if importlib.util.find_spec("tensorboardX") is None:
         changes["tensorboard"] = False  # event files need the "tensorboard" extra
@@ -170,8 +177,9 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
     if cfg.n < 1:
         raise UserError("--n must be at least 1")
-    make_task(TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy))  # validates the scenario
-    run_dir = Path(cfg.run_dir) if cfg.run_dir else default_run_dir(cfg.scenario, demo, cfg.seed, cfg.preset)
+    setting = get_setting(cfg.setting).name
+    make_task(TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy, setting=setting))  # validates the scenario
+    run_dir = Path(cfg.run_dir) if cfg.run_dir else default_run_dir(cfg.scenario, demo, cfg.seed, cfg.preset, setting)
     train_cfg = training_config(cfg, demo, enemy, run_dir, resume=latest_checkpoint(run_dir) is not None)
     check_run_dir(run_dir, train_cfg)
     t0 = time.time()
@@ -197,7 +205,7 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
         train_doc = json.loads((run_dir / "eval.json").read_text())
     doc = {
         "scenario": bundle.spec.scenario, "demonstrator": demo, "enemy": enemy, "n": cfg.n, "seed": cfg.seed,
-        "preset": cfg.preset,
+        "preset": cfg.preset, "setting": bundle.spec.setting,
         "episodes_trained": meta.get("episodes"),
         "train_wall_s": train_doc.get("wall_s"), "train_cpu_s": train_doc.get("cpu_s"),
         "rows": {
@@ -208,7 +216,8 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     }
     write_json_atomic(run_dir / "comparison.json", doc)
     lines = [
-        f"{bundle.spec.scenario}, demonstrator {demo}, enemy {enemy}, {cfg.n} battles (seed {cfg.seed})",
+        f"{bundle.spec.scenario}, demonstrator {demo}, enemy {enemy}, {cfg.n} battles (seed {cfg.seed})"
+        + ("" if bundle.spec.setting == "sparcraft" else f", {bundle.spec.setting} setting"),
         "",
         "| policy | W [95% CI] | R [95% CI] | paper W | paper R |",
         "|---|---|---|---|---|",

@@ -29,6 +29,7 @@ import jax
 import numpy as np
 
 from hybridmarl.errors import UserError
+from hybridmarl.settings import check_options, get_setting
 
 __all__ = [
     "ReplayConfig",
@@ -67,9 +68,13 @@ class ReplayConfig:
     max_steps: int = 500
     """Stop after this many env steps even if the episode has not ended (Traffic Junction
     episodes end after 40 steps)."""
-    p_arrive: float = 0.2
-    """Traffic Junction car arrival probability per entry and step (0.2: the paper's
-    evaluation setting). Ignored for combat."""
+    setting: str = "sparcraft"
+    """Named setting (docs/engine.md#settings): 'sparcraft' or 'paper'. Combat: the rules and
+    the geometry of named scenarios; Traffic Junction: the arrival probability. With --run-dir:
+    the run's."""
+    p_arrive: float | None = None
+    """Traffic Junction car arrival probability per entry and step (default: the setting's;
+    sparcraft: 0.2, CommNet's evaluation value). Ignored for combat."""
     time_penalty: bool = False
     """Traffic junction: CommNet's -0.01·τ per car per step in the reported return (a run's own
     setting with --run-dir)."""
@@ -84,13 +89,13 @@ class ReplayConfig:
 # --------------------------------------------------------------------------------------------
 
 
-def _resolve_scenario(scenario: Any) -> Any:
+def _resolve_scenario(scenario: Any, setting: str | None = None) -> Any:
     from hybridmarl.engine.scenarios import Scenario, load_scenario_file, named_scenario
 
     if isinstance(scenario, Scenario):
         return scenario
     s = str(scenario)
-    return load_scenario_file(s) if s.lower().endswith(".json") else named_scenario(s)
+    return load_scenario_file(s) if s.lower().endswith(".json") else named_scenario(s, setting)
 
 
 def record_combat_episode(
@@ -102,6 +107,7 @@ def record_combat_episode(
     *,
     env: Any = None,
     width: int = 640,
+    setting: str | None = None,
 ) -> tuple[list[np.ndarray], dict[str, Any]]:
     """Play one combat episode and render every decision point.
 
@@ -113,6 +119,7 @@ def record_combat_episode(
         max_steps: cap on env steps.
         env: a ready ``Combat`` to use instead of building one.
         width: frame width in px.
+        setting: the named setting (``hybridmarl.settings``; ignored if ``env`` is given).
 
     Returns:
         ``(frames, summary)``: uint8 ``[H, W, 3]`` frames (the start, then one per step) and a
@@ -123,7 +130,7 @@ def record_combat_episode(
     if max_steps < 1:
         raise ValueError(f"max_steps must be >= 1, got {max_steps}")
     if env is None:
-        env = Combat(_resolve_scenario(scenario), enemy=enemy)
+        env = Combat(_resolve_scenario(scenario, setting), enemy=enemy, setting=setting)
     policy = env.script_policy(ours) if isinstance(ours, str) else ours
     reset = jax.jit(env.reset)
     step = jax.jit(env.step)
@@ -262,6 +269,7 @@ def _validate(cfg: ReplayConfig) -> str:
     }.get(env, env)
     if env not in ("combat", "traffic_junction"):
         raise UserError(f"unknown env {cfg.env!r} (known: combat, traffic_junction)")
+    check_options(cfg.setting, p_arrive=cfg.p_arrive if env == "traffic_junction" else None)
     suffix = Path(cfg.out).suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise UserError(f"output {cfg.out!r} must end in .gif (or .mp4)")
@@ -277,10 +285,10 @@ def _validate(cfg: ReplayConfig) -> str:
                 canonical_name(name)
             except KeyError as e:
                 raise UserError(f"{who}: {e.args[0]}") from None
-        _resolve_scenario(cfg.scenario)  # InputError (a UserError) with one line if bad
+        _resolve_scenario(cfg.scenario, cfg.setting)  # InputError (a UserError) with one line if bad
     else:
         _tj_demonstrator(cfg.ours or "yield-before-junction")
-        if not 0.0 <= float(cfg.p_arrive) <= 1.0:
+        if cfg.p_arrive is not None and not 0.0 <= float(cfg.p_arrive) <= 1.0:
             raise UserError(f"p_arrive must be in [0, 1], got {cfg.p_arrive!r}")
     return env
 
@@ -304,9 +312,12 @@ def _trained_policy(cfg: ReplayConfig) -> tuple[ReplayConfig, Callable[..., jax.
         return nets.actor_actions(module, variables, task.observe(state)[None], task.avail(state)[None])[0]
 
     if spec.env == "combat":
-        cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None)
+        cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None, setting=spec.setting)
         return cfg, act
-    cfg = dataclasses.replace(cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None)
+    cfg = dataclasses.replace(
+        cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None,
+        setting=spec.setting,
+    )
     return cfg, act
 
 
@@ -335,10 +346,15 @@ def run_replay(cfg: ReplayConfig) -> int:
 
         if env == "combat":
             ours: Any = trained[1] if trained else (cfg.ours or "attack-closest")
-            frames, summary = record_combat_episode(cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps)
+            frames, summary = record_combat_episode(
+                cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps, setting=cfg.setting
+            )
+            summary["setting"] = cfg.setting
         else:
             ours = trained[1] if trained else (cfg.ours or "yield-before-junction")
-            frames, summary = record_tj_episode(ours, cfg.p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
+            p_arrive = get_setting(cfg.setting).p_arrive if cfg.p_arrive is None else cfg.p_arrive
+            frames, summary = record_tj_episode(ours, p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
+            summary["setting"] = cfg.setting
         if trained:
             summary["ours"] = f"policy:{cfg.run_dir}"
         try:

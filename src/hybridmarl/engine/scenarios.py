@@ -11,11 +11,12 @@ Generators (host-side NumPy, seeded, so the same seed gives the same states ever
   intermixed in one square.
 
 Named scenarios: ``m<A>v<B>`` is a Marine battle, A Marines of ours (player 0, left) against B
-(player 1, right). The default geometry is **contact**: disk centres 150 px apart around the map
-centre ((565, 352) and (715, 352)), radius 100 px. Of the contact geometries we swept
-(``experiments/demonstrator_geometry.py``) it reproduces the paper's demonstrator rows (Table 1,
-D_c and D_w, attack-closest vs attack-weakest in both directions) best. ``m<A>v<B>-apart`` uses the reference playouts' main setting (docs/engine.md#start-states-and-scenarios):
-centres (440, 352) and (840, 352), radius 100 px. Any other geometry or unit mix comes from a
+(player 1, right), in the **contact** geometry of a setting (``hybridmarl.settings``,
+docs/engine.md#settings). The default setting, ``sparcraft``, centres the disks 150 px apart
+around the map centre ((565, 352) and (715, 352)), radius 100 px; the ``paper`` setting uses the
+geometry calibrated to the paper's demonstrator rows (Table 1, ``experiments/paper_setting.py``).
+``m<A>v<B>-apart`` uses the reference playouts' main setting (docs/engine.md#start-states-and-scenarios):
+centres (440, 352) and (840, 352), radius 100 px, under every setting. Any other geometry or unit mix comes from a
 scenario file (``load_scenario_file``).
 """
 
@@ -389,8 +390,6 @@ def _stable_hash(s: str) -> int:
     return h
 
 
-CONTACT_SEPARATION = 150
-CONTACT_RADIUS = 100
 APART_CENTERS = ((440, 352), (840, 352))
 APART_RADIUS = 100
 
@@ -400,8 +399,13 @@ _MARINE_RE = re.compile(r"^m(\d+)v(\d+)(-apart|-contact)?$")
 PAPER_SCENARIOS = ("m5v5", "m30v30", "m18v20", "m24v30")
 
 
-def named_scenario(name: str) -> Scenario:
-    """``m<A>v<B>`` (contact geometry) or ``m<A>v<B>-apart`` (docs/engine.md#start-states-and-scenarios main setting)."""
+def named_scenario(name: str, setting: Any = None) -> Scenario:
+    """``m<A>v<B>`` (contact geometry of ``setting``, ``hybridmarl.settings``; default
+    ``sparcraft``: disks r=100 px centred 150 px apart) or ``m<A>v<B>-apart``
+    (docs/engine.md#start-states-and-scenarios main setting, the same under every setting)."""
+    from hybridmarl.settings import get_setting
+
+    geom = get_setting(setting).geometry
     m = _MARINE_RE.match(name.strip().lower())
     if not m:
         raise InputError(
@@ -423,16 +427,21 @@ def named_scenario(name: str) -> Scenario:
             description=f"{a} vs {b} Marines, disks r={APART_RADIUS} px centred 400 px apart (docs/engine.md#start-states-and-scenarios)",
         )
     cx, cy = DEFAULT_MAP_WIDTH_PX // 2, DEFAULT_MAP_HEIGHT_PX // 2
-    half = CONTACT_SEPARATION // 2
+    sep, r = geom.separation_for(a, b), geom.radius
+    if cx - sep // 2 - r < 0 or cx - sep // 2 + sep + r >= DEFAULT_MAP_WIDTH_PX or cy - r < 0:
+        raise InputError(
+            f"scenario {name!r}: its disks (radius {r} px, centres {sep} px apart) leave the "
+            f"{DEFAULT_MAP_WIDTH_PX}x{DEFAULT_MAP_HEIGHT_PX} map"
+        )
     return Scenario(
         name=name,
         side0=((marine, a),),
         side1=((marine, b),),
-        center0=(cx - half, cy),
-        center1=(cx + half, cy),
-        radius0=CONTACT_RADIUS,
-        radius1=CONTACT_RADIUS,
-        description=f"{a} vs {b} Marines, disks r={CONTACT_RADIUS} px centred {CONTACT_SEPARATION} px apart (contact)",
+        center0=(cx - sep // 2, cy),
+        center1=(cx - sep // 2 + sep, cy),
+        radius0=r,
+        radius1=r,
+        description=f"{a} vs {b} Marines, disks r={r} px centred {sep} px apart (contact)",
     )
 
 
@@ -514,10 +523,11 @@ def _check_fits(sc: Scenario) -> None:
                 raise InputError(f"scenario file: spread {sc.spread} around {c} leaves the {w}x{h} map")
 
 
-def resolve_scenario(name: str | None = None, path: str | None = None) -> Scenario:
+def resolve_scenario(name: str | None = None, path: str | None = None, setting: Any = None) -> Scenario:
+    """A scenario file (``path``) or the named scenario ``name`` under ``setting``."""
     if path:
         return load_scenario_file(path)
     if not name:
         raise InputError("give a scenario name (e.g. m5v5) or a scenario file")
-    return named_scenario(name)
+    return named_scenario(name, setting)
 

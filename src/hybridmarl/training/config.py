@@ -27,6 +27,7 @@ import numpy as np
 from tyro.conf import OmitArgPrefixes
 
 from hybridmarl.errors import TrainingDiverged
+from hybridmarl.settings import check_options, get_setting
 from hybridmarl.training.task import (
     TaskError,
     TaskSpec,
@@ -51,7 +52,7 @@ class TaskOptions(Options):
 
     # The compiled learners receive the task itself (and the demonstrator script) next to the
     # config, so the task's fields are not part of the compile key.
-    RUN_ONLY = frozenset({"env", "scenario", "demonstrator", "enemy", "p_arrive", "time_penalty", "max_turns"})
+    RUN_ONLY = frozenset({"env", "scenario", "demonstrator", "enemy", "p_arrive", "time_penalty", "max_turns", "setting"})
 
     env: str = "combat"
     """Environment: 'combat' (SparCraft combat, paper Section 5.1) or 'traffic_junction'
@@ -67,9 +68,14 @@ class TaskOptions(Options):
     enemy: str | None = None
     """Combat enemy script during training. Default: the other heuristic (c <-> w), the paper's
     cross-validation setting (Section 5.1)."""
-    p_arrive: float = 0.2
-    """Traffic junction arrival probability (0.2: the evaluation value of CommNet's medium
-    task, which the paper follows, Section 5.3)."""
+    setting: str = "sparcraft"
+    """Named setting (docs/engine.md#settings): 'sparcraft' (SparCraft's current rules, disks
+    r=100 px centred 150 px apart; traffic_junction p_arrive 0.2) or 'paper' (classic overkill,
+    stalemate limit 200, the geometry calibrated to the paper's demonstrators, Table 1; for
+    traffic_junction the p_arrive at which always-gas fails as often as the paper's D, Table 2)."""
+    p_arrive: float | None = None
+    """Traffic junction arrival probability. Default: the setting's (0.2 under 'sparcraft', the
+    evaluation value of CommNet's medium task, Section 5.3)."""
     time_penalty: bool = False
     """Traffic junction: add CommNet's -0.01·τ per car per step (τ = steps since the car
     entered; docs/environments.md). Off: the paper's reward, collisions and arrivals only
@@ -198,9 +204,12 @@ class TrainConfig:
     def task_spec(self) -> TaskSpec:
         env = canonical_env(self.env)
         if env == "combat":
+            setting = get_setting(self.setting)
             enemy = canonical_script("combat", self.enemy) if self.enemy else default_enemy(self.base_demonstrator())
-            return TaskSpec(env=env, scenario=self.scenario, enemy=enemy, max_turns=self.max_turns)
-        return TaskSpec(env=env, p_arrive=self.p_arrive, time_penalty=self.time_penalty)
+            return TaskSpec(env=env, scenario=self.scenario, enemy=enemy, max_turns=self.max_turns, setting=setting.name)
+        setting = check_options(self.setting, p_arrive=self.p_arrive)
+        p_arrive = setting.p_arrive if self.p_arrive is None else float(self.p_arrive)
+        return TaskSpec(env=env, p_arrive=p_arrive, time_penalty=self.time_penalty, setting=setting.name)
 
     def demonstrator_is_dataset(self) -> bool:
         d = self.demonstrator

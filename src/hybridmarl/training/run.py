@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import json
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -37,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.io import write_json_atomic
+from hybridmarl.settings import DEFAULT_SETTING
 from hybridmarl.training.checkpoint import (
     latest_checkpoint,
     load_checkpoint,
@@ -55,7 +57,7 @@ from hybridmarl.training.config import (
     resolve_run_dir,
 )
 from hybridmarl.training.logger import Progress, RunLogger, recent_status
-from hybridmarl.training.task import TaskError, flatten_named, make_task, unflatten_named
+from hybridmarl.training.task import TaskError, TaskSpec, flatten_named, make_task, unflatten_named
 
 
 @dataclass
@@ -130,6 +132,22 @@ class RunState:
             setattr(self, k, meta.get(k, getattr(self, k)))
 
 
+def check_same_setting(checkpoint: Path, spec: TaskSpec) -> None:
+    """Refuse to resume a run under another setting than the one it was trained under (a
+    checkpoint without one was trained under the default, ``sparcraft``)."""
+    try:
+        with open(checkpoint / "meta.json") as f:
+            task = json.load(f).get("task", {})
+    except (OSError, json.JSONDecodeError):
+        return  # load_checkpoint reports an unreadable checkpoint
+    saved = task.get("setting", DEFAULT_SETTING) if isinstance(task, dict) else DEFAULT_SETTING
+    if saved != spec.setting:
+        raise TaskError(
+            f"{checkpoint.parent.parent} was trained under setting {saved!r}; cannot resume it under "
+            f"setting {spec.setting!r} (pass --setting {saved}, or choose another --run-dir)"
+        )
+
+
 class Run:
     """Set-up, loop bookkeeping and the final evaluation of one training run (module docstring)."""
 
@@ -143,6 +161,8 @@ class Run:
         if self.checkpoint is not None and not cfg.resume:
             how = "pass --resume to continue it" if resumable else f"pass --resume ({algo} restarts from scratch)"
             raise TaskError(f"{self.run_dir} already holds checkpoints: {how}, or choose another --run-dir")
+        if self.checkpoint is not None:
+            check_same_setting(self.checkpoint, self.spec)
         self.log = RunLogger(self.run_dir, tensorboard=cfg.tensorboard)
         self.eval_task = self.task.against(cfg.eval_enemy_name())
         self.module: Any = None

@@ -91,6 +91,9 @@ class TaskSpec:
     p_arrive: float = 0.2
     num_cars: int = 10
     time_penalty: bool = False
+    #: The named setting (``hybridmarl.settings``): combat rules and scenario geometry; for
+    #: traffic_junction, ``paper`` fixes ``p_arrive``. Run metadata without it reads as the default.
+    setting: str = "sparcraft"
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

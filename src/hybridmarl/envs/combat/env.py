@@ -50,6 +50,7 @@ from hybridmarl.envs.combat.view import (
     make_view,
 )
 from hybridmarl.envs.stats import t_interval, wilson_interval
+from hybridmarl.settings import resolve as resolve_setting
 
 __all__ = ["Combat"]
 
@@ -68,7 +69,11 @@ class Combat(LearningEnv[CombatState, CombatParams]):
         debug: raise on illegal actions instead of replacing them (see Action space).
         start_states: a bank of start states: a list of unit lists (``UnitSpec``) or a stacked
             ``GameState``; becomes ``default_params.bank``.
-        stalemate_limit: DC-HEAD's limit on turns without HP change (50).
+        setting: the named setting (``hybridmarl.settings``: ``"sparcraft"``, the default, or
+            ``"paper"``): the geometry of a named scenario and the rules' overkill and stalemate
+            limit (docs/engine.md#settings).
+        stalemate_limit, overkill: override the setting's (``SettingError`` if they contradict a
+            setting that is not the default).
         walkable: the walk-tile map (default SparCraft's 1280x704 all-walkable map).
         num_allies_obs, num_enemies_obs: allies / enemies in the observation (10 / 10).
     """
@@ -84,17 +89,24 @@ class Combat(LearningEnv[CombatState, CombatParams]):
         debug: bool = False,
         start_states: Sequence[Sequence[UnitSpec]] | GameState | None = None,
         *,
-        stalemate_limit: int = 50,
+        setting: str | None = None,
+        stalemate_limit: int | None = None,
+        overkill: str | None = None,
         walkable: np.ndarray | None = None,
         num_allies_obs: int = K_ALLIES,
         num_enemies_obs: int = K_ENEMIES,
     ) -> None:
         if scenario is None and start_states is None:
             scenario = "m5v5"
-        sc = named_scenario(scenario) if isinstance(scenario, str) else scenario
+        self.setting, overkill, stalemate_limit = resolve_setting(
+            setting, overkill=overkill, stalemate_limit=stalemate_limit
+        )
+        sc = named_scenario(scenario, self.setting) if isinstance(scenario, str) else scenario
         if int(max_turns) < 1:
             raise ValueError(f"max_turns must be >= 1, got {max_turns}")
-        self.rules = make_rules(walkable, stalemate_limit=stalemate_limit, max_turns=int(max_turns))
+        self.rules = make_rules(
+            walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=int(max_turns)
+        )
         self.max_turns = int(max_turns)
         self.debug = bool(debug)
         self.scenario = sc
@@ -582,14 +594,18 @@ class Combat(LearningEnv[CombatState, CombatParams]):
         cls, spec: Any, enemy_script: Script | None = None
     ) -> tuple[Combat, CombatParams]:
         """The env of ``spec.scenario`` against ``spec.enemy`` (or ``enemy_script``) with
-        ``spec.max_turns``, and its default parameters."""
+        ``spec.max_turns`` under ``spec.setting``, and its default parameters."""
         enemy = enemy_script if enemy_script is not None else canonical_policy_name(cls, spec.enemy)
-        env = cls(scenario=spec.scenario, enemy=enemy, max_turns=spec.max_turns)
+        env = cls(
+            scenario=spec.scenario, enemy=enemy, max_turns=spec.max_turns,
+            setting=getattr(spec, "setting", None),
+        )
         return env, env.default_params
 
     @classmethod
     def spec_label(cls, spec: Any) -> str:
-        return f"{spec.scenario} vs {spec.enemy}"
+        setting = getattr(spec, "setting", "sparcraft")
+        return f"{spec.scenario} vs {spec.enemy}" + ("" if setting == "sparcraft" else f" ({setting} setting)")
 
     @classmethod
     def canonical_demonstrator(cls, name: str) -> str:

@@ -104,11 +104,16 @@ def learned_enemy(env: Combat, actor: ActorApply, variables: Any) -> Script:
 def mirror_env(env: Combat) -> Combat:
     """A combat env with ``env``'s sides swapped: what a policy playing ``env``'s enemy sees."""
     from hybridmarl.envs.combat.env import Combat
+    from hybridmarl.settings import DEFAULT_SETTING
 
+    default = env.setting.name == DEFAULT_SETTING
     return Combat(
         scenario=f"m{env.num_enemies}v{env.num_agents}",
         enemy="attack-weakest",
         max_turns=env.max_turns,
         walkable=np.asarray(env.rules.walkable),
-        stalemate_limit=env.rules.stalemate_limit,
+        # The default setting may carry overrides; any other setting has exactly its own rules.
+        setting=None if default else env.setting.name,
+        stalemate_limit=env.rules.stalemate_limit if default else None,
+        overkill=env.rules.overkill if default else None,
     )

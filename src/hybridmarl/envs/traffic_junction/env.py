@@ -416,16 +416,22 @@ class TrafficJunction(LearningEnv[TJState, TJParams]):
 
     @classmethod
     def from_spec(cls, spec: Any, enemy_script: Any = None) -> tuple[TrafficJunction, TJParams]:
-        """``spec.num_cars`` car slots, ``spec.p_arrive`` and ``spec.time_penalty``."""
+        """``spec.num_cars`` car slots, ``spec.p_arrive`` and ``spec.time_penalty``; a
+        ``spec.setting`` other than the default fixes ``p_arrive`` (``hybridmarl.settings``)."""
         if enemy_script is not None:
             raise ValueError("traffic_junction has no enemy to replace")
+        from hybridmarl.settings import check_options
+
+        check_options(getattr(spec, "setting", None), p_arrive=float(spec.p_arrive))
         env = cls(num_agents=spec.num_cars)
         params = env.default_params.replace(p_arrive=float(spec.p_arrive), time_penalty=bool(spec.time_penalty))
         return env, params
 
     @classmethod
     def spec_label(cls, spec: Any) -> str:
-        return f"traffic_junction (p_arrive {spec.p_arrive:g}{', time penalty' if spec.time_penalty else ''})"
+        setting = getattr(spec, "setting", "sparcraft")
+        extra = (", time penalty" if spec.time_penalty else "") + ("" if setting == "sparcraft" else f", {setting} setting")
+        return f"traffic_junction (p_arrive {spec.p_arrive:g}{extra})"
 
     @classmethod
     def canonical_demonstrator(cls, name: str) -> str:
@@ -483,7 +489,8 @@ class TrafficJunction(LearningEnv[TJState, TJParams]):
         r = result
         return (
             f"eval ({r['n']} episodes): failure rate {r['failure_rate']:.3f} "
-            f"[{r['failure_rate_ci95'][0]:.3f}, {r['failure_rate_ci95'][1]:.3f}]  return {r['R']:+.2f}"
+            f"[{r['failure_rate_ci95'][0]:.3f}, {r['failure_rate_ci95'][1]:.3f}]  "
+            f"arrivals/episode {r['mean_arrivals']:.1f}  return {r['R']:+.2f}"
         )
 
 
