@@ -11,15 +11,15 @@ against attack-closest) in m5v5, m30v30, m18v20 and m24v30, next to the paper's.
   every ``C:K:R`` in ``--rules``, on the calibration seed (1000 unless ``--seed`` says otherwise);
   one JSON line per rule with the largest distance to the paper's eight cells.
 - ``--mode tj``: Traffic Junction: the always-gas demonstrator's failure rate and arrivals per
-  episode for every arrival probability in ``--p-arrive`` (``--episodes`` each, 2000), next to
-  the paper's D (failure 0.72, Table 2).
+  episode for every arrival probability in ``--p-arrive`` (``--episodes`` per seed, 2000, for
+  each of ``--seeds``, pooled), next to the paper's D (failure 0.72, Table 2).
 
 All combat games run on the native engine (docs/engine-backends.md; the same games as the JAX
 engine). Usage::
 
     python experiments/paper_setting.py                       # check, 1000 states, seed 2026
     python experiments/paper_setting.py --mode sweep --n 2000 --rules 112:1:110,150:0:100
-    python experiments/paper_setting.py --mode tj --p-arrive 0.09,0.1,0.11,0.12
+    python experiments/paper_setting.py --mode tj --p-arrive 0.1,0.105,0.11 --seeds 0,1,2,3
 """
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ def sweep(rules_arg: str, n: int, seed: int) -> None:
         print(json.dumps(row), flush=True)
 
 
-def traffic_junction(probs: list[float], episodes: int, seed: int) -> dict:
+def traffic_junction(probs: list[float], episodes: int, seeds: list[int]) -> dict:
     import jax
 
     from hybridmarl.envs.traffic_junction import TrafficJunction, always_gas
@@ -132,18 +132,24 @@ def traffic_junction(probs: list[float], episodes: int, seed: int) -> dict:
 
     rows = []
     for p in probs:
-        f, a = run(jax.random.key(seed), env.default_params.replace(p_arrive=p))
-        rows.append({"p_arrive": p, "failure_rate": round(float(f), 4), "mean_arrivals": round(float(a), 2)})
-    return {"episodes": episodes, "seed": seed, "paper_D_failure": PAPER_TJ_FAILURE, "rows": rows}
+        runs = [run(jax.random.key(seed), env.default_params.replace(p_arrive=p)) for seed in seeds]
+        f = [float(r[0]) for r in runs]
+        a = [float(r[1]) for r in runs]
+        rows.append({
+            "p_arrive": p, "failure_rate": round(sum(f) / len(f), 4), "mean_arrivals": round(sum(a) / len(a), 2),
+            "failure_rate_by_seed": [round(v, 4) for v in f],
+        })
+    return {"episodes_per_seed": episodes, "seeds": seeds, "paper_D_failure": PAPER_TJ_FAILURE, "rows": rows}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mode", choices=("check", "sweep", "tj"), default="check")
     ap.add_argument("--n", type=int, default=1000, help="start states per cell (combat)")
-    ap.add_argument("--seed", type=int, default=None, help="check: 2026; sweep: 1000; tj: 0")
+    ap.add_argument("--seed", type=int, default=None, help="check: 2026; sweep: 1000")
+    ap.add_argument("--seeds", default="0", help="tj: episode seeds, comma-separated (pooled)")
     ap.add_argument("--rules", default="112:1:110", help="sweep: C:K:R,... (radius R, centres C + K(A+B) apart)")
-    ap.add_argument("--p-arrive", default="0.09,0.1,0.11,0.12", help="tj: arrival probabilities")
+    ap.add_argument("--p-arrive", default="0.1,0.105,0.11", help="tj: arrival probabilities")
     ap.add_argument("--episodes", type=int, default=2000, help="tj: episodes per probability")
     args = ap.parse_args()
     t0 = time.time()
@@ -151,7 +157,8 @@ def main() -> None:
         sweep(args.rules, args.n, 1000 if args.seed is None else args.seed)
         return
     if args.mode == "tj":
-        doc = traffic_junction([float(p) for p in args.p_arrive.split(",")], args.episodes, args.seed or 0)
+        seeds = [int(v) for v in args.seeds.split(",")]
+        doc = traffic_junction([float(p) for p in args.p_arrive.split(",")], args.episodes, seeds)
         doc["wall_s"] = round(time.time() - t0, 1)
         print(json.dumps(doc))
         print()
