@@ -88,6 +88,8 @@ def test_unknown_setting_and_contradictions():
         (["eval", "--script", "attack-closest", "--setting", "nope"], "unknown setting"),
         (["demos", "collect", "--out", "x.safetensors", "--setting", "nope"], "unknown setting"),
         (["replay", "--setting", "nope"], "unknown setting"),
+        (["trace", "--setting", "nope"], "unknown setting"),
+        (["quickstart", "--setting", "nope"], "unknown setting"),
     ],
 )
 def test_cli_bad_setting_one_line_exit_2(argv, msg, capsys, tmp_path, monkeypatch):
@@ -116,6 +118,13 @@ def test_battle_paper_setting_plays_its_rules_and_geometry(tmp_path):
     states = named_scenario("m5v5", "paper").generate(20, 2)
     res = run_battles(states, "attack-closest", "attack-weakest", rules=get_setting("paper").rules(), progress=False, engine="native")
     assert doc["setting"] == "paper" and doc["results"] == res.to_document()["results"]
+
+
+def test_quickstart_run_dir_names_a_non_default_setting():
+    from hybridmarl.cli.quickstart import default_run_dir
+
+    assert str(default_run_dir("m5v5", "attack-closest", 0)) == "runs/quickstart-m5v5-attack-closest-s0"
+    assert str(default_run_dir("m5v5", "attack-closest", 0, setting="paper")) == "runs/quickstart-m5v5-attack-closest-paper-s0"
 
 
 def test_combat_env_and_task_take_the_setting():

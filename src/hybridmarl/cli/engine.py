@@ -86,6 +86,9 @@ class TraceConfig:
     """JSON states file; the state at --index is traced."""
     scenario: str = "m5v5"
     """Named scenario used when --states is not given."""
+    setting: Annotated[str, tyro.conf.arg(help_behavior_hint="sparcraft | paper")] = "sparcraft"
+    """Named setting (docs/engine.md#settings): the rules, and the geometry of the named
+    scenario."""
     index: int = 0
     """Which state to trace."""
     seed: int = 0
@@ -250,19 +253,21 @@ def run_trace(cfg: TraceConfig) -> int:
     """Print the trace of one battle; raises ``InputError`` (a ``UserError``) on bad input."""
     from hybridmarl.engine.scenarios import InputError, load_states_file, named_scenario
     from hybridmarl.engine.scripts import canonical_name
-    from hybridmarl.engine.state import build_state, make_rules
+    from hybridmarl.engine.state import build_state
     from hybridmarl.engine.trace import format_trace, record_trace
+    from hybridmarl.settings import get_setting
 
     for s in (cfg.p0, cfg.p1):
         try:
             canonical_name(s)
         except KeyError as e:
             raise InputError(str(e.args[0])) from None
-    states = load_states_file(cfg.states) if cfg.states else named_scenario(cfg.scenario).generate(cfg.index + 1, cfg.seed)
+    setting = get_setting(cfg.setting)
+    states = load_states_file(cfg.states) if cfg.states else named_scenario(cfg.scenario, setting).generate(cfg.index + 1, cfg.seed)
     if not 0 <= cfg.index < len(states):
         raise InputError(f"--index {cfg.index} out of range (0..{len(states) - 1})")
     units = states[cfg.index]
-    tr = record_trace(units, build_state(units), make_rules(), cfg.p0, cfg.p1, seed=cfg.seed)
+    tr = record_trace(units, build_state(units), setting.rules(), cfg.p0, cfg.p1, seed=cfg.seed)
     sys.stdout.write(format_trace(tr))
     return 0
 
