@@ -181,7 +181,7 @@ Termination
 -----------
 ``done`` when the engine's game is over (``rules.game_over``): a side has no living unit that
 can deal damage, or more than 50 consecutive engine turns without HP change (DC-HEAD
-stalemate), or ``max_turns`` engine turns were played (default 1000: scripted m30v30 battles
+stalemate; 200 under the ``paper`` setting, docs/engine.md#settings), or ``max_turns`` engine turns were played (default 1000: scripted m30v30 battles
 take 100-250 engine turns; SparCraft's experiments use 20,000). ``info["truncated"]`` marks the
 turn cap. ``info["won"]`` / ``info["lost"]`` / ``info["draw"]`` (valid when done): won = the
 enemy has no unit left that can deal damage and we do (``rules.winner == 0``), lost = the
