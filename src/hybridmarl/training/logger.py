@@ -82,9 +82,13 @@ class RunLogger:
         self.evals = CsvLog(self.run_dir / "evals.csv", "episodes")
         self.tb = None
         if tensorboard:
-            from tensorboardX import SummaryWriter
-
-            self.tb = SummaryWriter(str(self.run_dir / "tb"), flush_secs=30)
+            try:
+                from tensorboardX import SummaryWriter
+            except ImportError:
+                # An optional extra: the run goes on with its CSV logs.
+                print("TensorBoard logging is off: tensorboardX is not installed (pip install 'hybridmarl[tensorboard]')")
+            else:
+                self.tb = SummaryWriter(str(self.run_dir / "tb"), flush_secs=30)
 
     def write_config(self, doc: dict[str, Any]) -> None:
         write_json_atomic(self.run_dir / "config.json", doc)

@@ -32,8 +32,12 @@ def training_curve(
     v = np.asarray(values, np.float64)
     if v.size == 0:
         return None
-    import matplotlib
-
+    try:
+        import matplotlib
+    except ImportError:
+        # An optional extra: the curve's data is in episodes.csv either way.
+        print(f"no {Path(path).name}: matplotlib is not installed (pip install 'hybridmarl[plots]')")
+        return None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
