@@ -7,6 +7,7 @@ states a few turns into a game), on the open map and a walled map."""
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import pytest
 
@@ -80,7 +81,8 @@ def _decisions(spec: str, cases, seed: int = 7) -> list[tuple[list[int], int, in
 def test_engine_option_resolves():
     assert make_player("uct:engine=jax").engine == "jax"  # type: ignore[attr-defined]
     assert make_player("abcd:engine=native,nodes=5").engine == "native"  # type: ignore[attr-defined]
-    assert make_player("pgs").engine == "native"  # type: ignore[attr-defined]  # auto on a CPU
+    auto = "native" if jax.default_backend() == "cpu" else "jax"
+    assert make_player("pgs").engine == auto  # type: ignore[attr-defined]
     with pytest.raises(ValueError, match="engine"):
         make_player("uct:engine=gpu")
 
