@@ -139,6 +139,26 @@ def _is_move(code):
     return MOVE_BASE <= code < ATTACK_BASE
 
 
+# The engine's turn functions are inlined into their callers (``inline="always"``); the search
+# kernels call them from several places, so each is wrapped once in a plain function here, which
+# keeps the kernels' compile time down (one copy of each instead of one per call site).
+
+
+@njit(cache=True)
+def _prepare(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws):
+    return prepare_turn(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+
+
+@njit(cache=True)
+def _choose(script, p, utype, x, y, hp, rng_base, ws):
+    choose_actions(script, p, utype, x, y, hp, rng_base, ws)
+
+
+@njit(cache=True)
+def _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws):
+    apply_turn(0, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
+
+
 @njit(cache=True)
 def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd_total,
                 ltd2_total, walkable, info_scripts, playout0, playout1, overkill_pass,
@@ -153,7 +173,7 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
     step_moves[k, 0] = 0
     step_moves[k, 1] = 0
     if do_step[k]:
-        prepare_turn(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+        _prepare(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
         acts, acting = ws[4], ws[6]
         for p in range(2):
             for s in range(n):
@@ -162,11 +182,10 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
                 acts[p, s] = actions[k, p, s]
                 if a and _is_move(actions[k, p, s]):
                     step_moves[k, p] += 1
-        apply_turn(0, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                   prev, overkill_pass, ws)
+        _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
     _pack(st, sc, prev, child_out[k])
     # 2. The child's node info.
-    prepare_turn(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+    _prepare(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
     cx, cy, order, acting, can_atk, move_ok, alive = ws[0], ws[1], ws[2], ws[6], ws[7], ws[8], ws[5]
     for p in range(2):
         movers_out[k, p] = ws[12][p]
@@ -201,7 +220,7 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
     rng = _rng_base(seed, k, turn[0])
     for i in range(info_scripts.shape[0]):
         for p in range(2):
-            choose_actions(info_scripts[i], p, utype, x, y, hp, rng ^ (salt1 if p == 1 else np.uint64(0)), ws)
+            _choose(info_scripts[i], p, utype, x, y, hp, rng ^ (salt1 if p == 1 else np.uint64(0)), ws)
             for s in range(n):
                 scripts_out[k, i, p, s] = ws[4][p, s]
     terminal_out[k] = _terminal(utype, hp, stale[0], stalemate_limit)
@@ -245,16 +264,15 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
     moves = 0
     played = 0
     while played < cap and not _terminal(utype, hp, stale[0], stalemate_limit):
-        prepare_turn(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+        _prepare(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
         rng = _rng_base(seed, k + 7919 * (played + 1), turn[0])
-        choose_actions(playout0, 0, utype, x, y, hp, rng, ws)
-        choose_actions(playout1, 1, utype, x, y, hp, rng ^ salt1, ws)
+        _choose(playout0, 0, utype, x, y, hp, rng, ws)
+        _choose(playout1, 1, utype, x, y, hp, rng ^ salt1, ws)
         pl = player[k]
         for s in range(n):
             if ws[6][pl, s] and _is_move(ws[4][pl, s]):
                 moves += 1
-        apply_turn(0, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                   prev, overkill_pass, ws)
+        _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
         played += 1
     totals = ltd_total if use_ltd else ltd2_total
     s0, s1 = _scores(utype, hp, totals, use_ltd)
@@ -302,7 +320,7 @@ def _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, sc
     salt1 = np.uint64(0x5555555555555555)
     played = 0
     while played <= turns and not _terminal(utype, hp, stale[0], stalemate_limit):
-        prepare_turn(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+        _prepare(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
         rng = _rng_base(seed, k + 7919 * (played + 1), turn[0])
         acting = ws[6]
         for p in range(2):
@@ -315,13 +333,12 @@ def _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, sc
             # sees every acting unit); each unit then takes its own script's action.
             for i in range(ns):
                 if used[i]:
-                    choose_actions(scripts[i], p, utype, x, y, hp, rng ^ (salt1 if p == 1 else np.uint64(0)), ws)
+                    _choose(scripts[i], p, utype, x, y, hp, rng ^ (salt1 if p == 1 else np.uint64(0)), ws)
                     for s in range(n):
                         per_script[i, s] = ws[4][p, s]
             for s in range(n):
                 ws[4][p, s] = per_script[assign[k, p, s], s] if acting[p, s] else PASS_ACTION
-        apply_turn(0, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                   prev, overkill_pass, ws)
+        _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
         played += 1
     return _eval(utype, hp, ltd2_total, False, player[k])
 
