@@ -504,8 +504,9 @@ def eval_params(method: str) -> tuple[int, bool]:
 
 
 class Engine:
-    """The compiled search program (``kernels.search_fn``) of one decision: pads every call to
-    a fixed batch size, so each size compiles once, and counts the calls."""
+    """The search program of one decision, on the player's engine: ``kernels.search_fn`` (JAX;
+    every call padded to a fixed batch size, so each size compiles once) or
+    ``native.search_call`` (the native engine; same results, no padding); counts the calls."""
 
     def __init__(self, player: SearchPlayer, dev: DeviceArgs, info_scripts: tuple[str, ...], playout_scripts: tuple[str, str], stats: SearchStats):
         self.player = player

@@ -24,6 +24,10 @@ The kernels:
   playout, which is how node expansion and the root's info use the same program).
 - :func:`pgs_fn`: Portfolio Greedy Search playouts where every unit follows its own script
   (``Game::playIndividualScripts``), scored by ``eval(player, LTD2)`` of the final state.
+
+The native engine's counterparts (``engine.native.search``, called through ``search.native``)
+return the same arrays; LTD / LTD2 here are :func:`ltd_scores`, summed unit by unit as the
+native kernels sum them.
 """
 
 from __future__ import annotations
