@@ -109,15 +109,18 @@ def _random_rows(rng, info, m, n):
     return actions, mask
 
 
-@pytest.mark.parametrize(("cap", "use_ltd"), [(0, False), (200, False), (7, True)])
-def test_search_call_matches_jax(cases, cap, use_ltd):
+@pytest.mark.parametrize(("cap", "use_ltd", "variant"), [(0, False, None), (200, False, None), (7, True, None), (200, False, "classic")])
+def test_search_call_matches_jax(cases, cap, use_ltd, variant):
     """Children, node info (masked to acting units where scripts leave others undefined),
-    step / playout MOVE counts and leaf values of random joint actions are equal."""
+    step / playout MOVE counts and leaf values of random joint actions are equal (``classic``:
+    DC-CLASSIC overkill and a stalemate limit of 3 turns)."""
     rng = np.random.default_rng(cap)
     info_scripts = ("nokdps", "kiter-dps", "attack-closest", "cluster")
     playout = ("nokdps", "kiter")
     m = 6
     for state, rules in cases:
+        if variant == "classic":
+            rules = make_rules(np.asarray(rules.walkable), overkill="classic", stalemate_limit=3)
         root, consts = K.pack_state(state)
         player = make_player("uct:engine=jax")
         jdev = DeviceArgs(consts, rules, "jax")
