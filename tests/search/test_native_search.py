@@ -159,7 +159,7 @@ SPECS = [
     "uct:time_ms=0,traversals=80,batch=1",
     "uct:time_ms=0,traversals=60,eval=ltd2,max_children=6",
     "abcd:time_ms=0,nodes=60",
-    "abcd:time_ms=0,nodes=120,max_children=6,batch=4",
+    "abcd:time_ms=0,nodes=150,batch=1",
     "abcd:time_ms=0,nodes=100,eval=ltd,opponent_model=nokdps",
     "pgs:time_ms=0",
     "pgs:time_ms=0,playouts=9,responses=1,lookahead=2",
