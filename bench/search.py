@@ -13,6 +13,8 @@ distinct start states (the first decision of a game, where every unit of both si
 - ABCD with a 40 ms budget (20 children, playout evaluation): nodes expanded, depth completed;
 - PGS with no time limit (I = 1, R = 0): ms per decision and its playout count;
 
+on each engine of ``--engines`` (default both: ``native``, the Numba CPU engine, and ``jax``),
+
 each as min / median, with the compile time of each player's programs measured separately
 (``warmup``), next to SparCraft's own figures measured on one core (docs/speed.md#sparcraft-reference-figures).
 
@@ -61,14 +63,22 @@ def _min_med(xs: list[float]) -> dict:
     return {"min": min(xs), "median": statistics.median(xs), "max": max(xs)}
 
 
-def bench_speed(n: int, decisions: int, time_ms: float, seed: int) -> dict:
+def bench_speed(n: int, decisions: int, time_ms: float, seed: int, engines: list[str]) -> dict:
     rules = make_rules()
     states = [build_state(s) for s in _states(n, decisions, seed)]
-    row: dict = {"n": n, "decisions": decisions, "sparcraft": SPARCRAFT.get(n)}
+    row: dict = {"n": n, "decisions": decisions, "sparcraft": SPARCRAFT.get(n), "loadavg_start": [round(x, 2) for x in os.getloadavg()]}
+    for engine in engines:
+        row[engine] = _bench_engine(n, states, rules, time_ms, seed, engine)
+    row["loadavg_end"] = [round(x, 2) for x in os.getloadavg()]
+    return row
+
+
+def _bench_engine(n: int, states: list, rules, time_ms: float, seed: int, engine: str) -> dict:
+    row: dict = {}
     specs = {
-        "uct": f"uct:time_ms={time_ms:g}",
-        "abcd": f"abcd:time_ms={time_ms:g}",
-        "pgs": "pgs:time_ms=0",
+        "uct": f"uct:time_ms={time_ms:g},engine={engine}",
+        "abcd": f"abcd:time_ms={time_ms:g},engine={engine}",
+        "pgs": f"pgs:time_ms=0,engine={engine}",
     }
     for alg, spec in specs.items():
         player = make_player(spec)
@@ -100,8 +110,38 @@ def bench_speed(n: int, decisions: int, time_ms: float, seed: int) -> dict:
             out["nodes_per_40ms_cpu"] = _min_med([round(40 * s.nodes / max(s.cpu_ms, 1e-3), 1) for s in stats])
             out["fallback_decisions"] = sum(s.fallback for s in stats)
         row[alg] = out
-        print(f"  {n}v{n} {alg}: {json.dumps(out)}", file=sys.stderr, flush=True)
+        print(f"  {n}v{n} {engine} {alg}: {json.dumps(out)}", file=sys.stderr, flush=True)
     return row
+
+
+def _range(v) -> str:
+    return "-".join(f"{x:g}" for x in v) if isinstance(v, list) else f"{v:g}"
+
+
+def table(speed: list[dict], engines: list[str]) -> str:
+    """Markdown table: per size and engine, min / median of UCT traversals and ABCD nodes per
+    decision (40 ms budget) and PGS ms per decision (no time limit), SparCraft beside."""
+    lines = [
+        "| n | engine | UCT traversals / 40 ms | ABCD nodes / 40 ms (depth) | PGS ms / decision | compile s (uct, abcd, pgs) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for row in speed:
+        n = row["n"]
+        for e in engines:
+            r = row[e]
+            u, a, p = r["uct"], r["abcd"], r["pgs"]
+            lines.append(
+                f"| {n}v{n} | {e} | {u['traversals']['min']:g} / {u['traversals']['median']:g} "
+                f"| {a['nodes']['min']:g} / {a['nodes']['median']:g} ({a['depth_completed']['median']:g}) "
+                f"| {p['ms']['min']:g} / {p['ms']['median']:g} | {u['compile_s']}, {a['compile_s']}, {p['compile_s']} |"
+            )
+        sc = row.get("sparcraft")
+        if sc:
+            lines.append(
+                f"| {n}v{n} | SparCraft (C++) | {_range(sc['uct_traversals_40ms'])} | {_range(sc['ab_nodes_40ms'])} "
+                f"({_range(sc['ab_depth'])}) | {_range(sc['pgs_ms'])} | |"
+            )
+    return "\n".join(lines)
 
 
 def sanity(players: list[str], battles: int, seed: int) -> dict:
@@ -146,6 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--battles", type=int, default=30, help="sanity battles per search player")
     ap.add_argument("--sanity-players", nargs="+", default=["uct", "pgs"], help="player specs for the sanity battles")
     ap.add_argument("--no-sanity", action="store_true", help="skip the sanity battles")
+    ap.add_argument("--engines", nargs="+", default=["native", "jax"], choices=["native", "jax"], help="engines to measure, side by side")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, help="also write the JSON here")
     args = ap.parse_args(argv)
@@ -160,8 +201,10 @@ def main(argv: list[str] | None = None) -> int:
             "backend": jax.default_backend(),
             "loadavg_start": [round(x, 2) for x in load0],
         },
-        "speed": [bench_speed(n, args.decisions, args.time_ms, args.seed) for n in args.sizes],
+        "speed": [bench_speed(n, args.decisions, args.time_ms, args.seed, args.engines) for n in args.sizes],
     }
+    doc["table"] = table(doc["speed"], args.engines)
+    print(doc["table"], file=sys.stderr, flush=True)
     if not args.no_sanity and args.battles > 0:
         doc["sanity"] = sanity(args.sanity_players, args.battles, args.seed)
     doc["machine"]["loadavg_end"] = [round(x, 2) for x in os.getloadavg()]

@@ -70,8 +70,9 @@ class BattleConfig:
     """Engine backend of scripted battles: 'native' (Numba, compiled for the CPU; the first run
     on a machine compiles it once, about a minute), 'jax' (the reference backend, for GPUs), or
     'auto': native when JAX's default device is a CPU, else jax. Both give identical results,
-    except the 'random' script's draws (docs/engine-backends.md). Search players always decide
-    on the host."""
+    except the 'random' script's draws (docs/engine-backends.md). Search players decide on the
+    host; their engine calls follow the spec's own option (e.g. 'uct:engine=jax'; default auto,
+    docs/baselines.md#engine-option)."""
 
 
 @dataclass(frozen=True)

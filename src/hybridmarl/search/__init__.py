@@ -1,4 +1,5 @@
-"""SparCraft's search players on the JAX engine: UCT-CD, ABCD and Portfolio Greedy Search.
+"""SparCraft's search players: UCT-CD, ABCD and Portfolio Greedy Search, on the native CPU
+engine or the JAX engine (player option ``engine=auto|native|jax``; docs/baselines.md#engine-option).
 
 >>> from hybridmarl.search import make_player, run_player_battles
 >>> from hybridmarl.engine.scenarios import named_scenario
@@ -7,8 +8,9 @@
 
 Modules: ``base`` (player interface, options and spec grammar), ``factory`` (``make_player``),
 ``uct``, ``abcd``, ``pgs`` (the algorithms, each documenting its deviations from SparCraft),
-``moves`` (SparCraft's child generation), ``kernels`` (the compiled engine calls) and ``runner``
-(host-loop games and battle series).
+``moves`` (SparCraft's child generation), ``kernels`` (the compiled JAX engine calls), ``native``
+(the same calls on the native engine, ``engine.native.search``) and ``runner`` (host-loop games
+and battle series).
 """
 
 from hybridmarl.search.abcd import ABCDPlayer

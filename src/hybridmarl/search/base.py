@@ -62,6 +62,8 @@ Options (defaults from SparCraft; docs/baselines.md describes each player)::
       iterations=1, responses=0, playout_turns=100   I, R and the playout cap
       lookahead=1              1: one unit per engine call; 2: speculative unit pairs (same result)
     any search
+      engine=auto              native | jax | auto (native when JAX runs on the CPU); both
+                               engines give the same decisions (docs/engine-backends.md)
       script=NAME              shorthand: ordering and playouts (and abcd's fallback; pgs's
                                portfolio and enemy seed) all set to NAME
 
@@ -149,6 +151,13 @@ _COMMON_SEARCH = (
     _opt("opponent_model", "script?", None, "script the opponent is assumed to play (one child at its nodes); sample config None"),
 )
 
+ENGINES = ("auto", "native", "jax")
+_ENGINE_OPTION = _opt(
+    "engine", "choice", "auto",
+    "engine for every call the search makes: native (Numba, CPU), jax, or auto = native when JAX runs on the CPU (docs/engine-backends.md)",
+    choices=ENGINES,
+)
+
 UCT_OPTIONS: tuple[Option, ...] = (
     _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, 0 = none (sample config / CIG 2013: 40 ms)", minimum=0),
     _opt("traversals", "int", 5000, "maximum traversals per decision (sample config 5000)", minimum=1),
@@ -156,6 +165,7 @@ UCT_OPTIONS: tuple[Option, ...] = (
     *_COMMON_SEARCH,
     _opt("root_select", "choice", "most-visited", "root move: most visited child (SparCraft default) or highest UCB value", choices=("most-visited", "highest-value")),
     _opt("batch", "batch", "auto", "leaf-parallel batch: leaves evaluated per engine call (virtual loss); 1 = SparCraft's serial UCT; auto = by army size, see auto_batch (our deviation)"),
+    _ENGINE_OPTION,
 )
 
 ABCD_OPTIONS: tuple[Option, ...] = (
@@ -167,6 +177,7 @@ ABCD_OPTIONS: tuple[Option, ...] = (
     _opt("tt_size", "int", 100_000, "transposition table entries (Constants::Transposition_Table_Size)", minimum=16),
     _opt("fallback", "script", "nokdps", "move when depth 1 does not complete (SparCraft: NOKDPS)"),
     _opt("batch", "batch", "auto", "leaf playouts per engine call after the eldest child (young-brothers-wait batching); 1 = serial; auto = by army size, at most max_children (our deviation)"),
+    _ENGINE_OPTION,
 )
 
 PGS_OPTIONS: tuple[Option, ...] = (
@@ -178,6 +189,7 @@ PGS_OPTIONS: tuple[Option, ...] = (
     _opt("responses", "int", 0, "response rounds R (default 0)", minimum=0),
     _opt("playout_turns", "int", K.PGS_PLAYOUT_TURNS, "playout cap; the loop runs while rounds <= cap, i.e. up to cap+1 turns", minimum=1),
     _opt("lookahead", "lookahead", 1, "1: one unit's candidates per engine call (SparCraft's order); 2: a pair of units per call, speculatively, same result (measured: at most ~10% faster)"),
+    _ENGINE_OPTION,
 )
 
 ALGORITHMS: dict[str, tuple[Option, ...]] = {"uct": UCT_OPTIONS, "abcd": ABCD_OPTIONS, "pgs": PGS_OPTIONS}
@@ -364,15 +376,32 @@ class ScriptPlayer:
         return out
 
 
-class DeviceArgs:
-    """Per-decision constants in device form, shared by every compiled call of a decision."""
+def resolve_engine(value: str) -> str:
+    """``native`` or ``jax`` for an ``engine`` option value (``auto``: native when JAX's default
+    backend is the CPU)."""
+    if value == "auto":
+        return "native" if jax.default_backend() == "cpu" else "jax"
+    return value
 
-    def __init__(self, consts: K.Consts, rules: Rules):
+
+class DeviceArgs:
+    """Per-decision constants, shared by every engine call of a decision: in device form for the
+    JAX engine, as NumPy arrays (``native``) for the native engine."""
+
+    def __init__(self, consts: K.Consts, rules: Rules, engine: str = "jax"):
         self.consts = consts
         self.rules = rules
         self.rules_key = K.rules_static(rules)
-        self.args = tuple(jax.device_put(a) for a in consts.as_args()) + (rules.walkable,)
         self.num_slots = consts.num_slots
+        self.engine = engine
+        self.native: Any = None
+        if engine == "native":
+            from hybridmarl.search.native import NativeArgs
+
+            self.native = NativeArgs(consts, rules)
+            self.args: tuple = ()
+        else:
+            self.args = tuple(jax.device_put(a) for a in consts.as_args()) + (rules.walkable,)
 
 
 class SearchPlayer(abc.ABC):
@@ -383,6 +412,7 @@ class SearchPlayer(abc.ABC):
     def __init__(self, options: dict[str, Any], name: str):
         self.options = options
         self.name = name
+        self.engine = resolve_engine(options.get("engine", "jax"))
         self.reset(0)
         self._stats: SearchStats | None = None
 
@@ -405,8 +435,8 @@ class SearchPlayer(abc.ABC):
             raise ValueError(f"player index must be 0 or 1, got {p!r}")
         t0 = time.perf_counter()
         c0 = time.process_time()
-        root, consts = K.pack_state(state)
-        dev = DeviceArgs(consts, rules)
+        root, consts = self._pack(state)
+        dev = DeviceArgs(consts, rules, self.engine)
         stats = SearchStats(algorithm=self.algorithm)
         move = self._search(root, dev, p, stats, t0)
         stats.ms = (time.perf_counter() - t0) * 1e3
@@ -421,9 +451,20 @@ class SearchPlayer(abc.ABC):
     def warmup(self, state: GameState, rules: Rules) -> float:
         """Compile every program this player uses for ``state``'s shape; returns seconds spent."""
         t0 = time.perf_counter()
-        root, consts = K.pack_state(state)
-        self._warmup(root, DeviceArgs(consts, rules))
+        root, consts = self._pack(state)
+        if self.engine == "native":
+            from hybridmarl.search.native import compile_search_kernels
+
+            compile_search_kernels()
+        self._warmup(root, DeviceArgs(consts, rules, self.engine))
         return time.perf_counter() - t0
+
+    def _pack(self, state: GameState) -> tuple[np.ndarray, K.Consts]:
+        if self.engine == "native":
+            from hybridmarl.search.native import pack_state_host
+
+            return pack_state_host(state)
+        return K.pack_state(state)
 
     @abc.abstractmethod
     def _warmup(self, root: np.ndarray, dev: DeviceArgs) -> None:
@@ -463,8 +504,9 @@ def eval_params(method: str) -> tuple[int, bool]:
 
 
 class Engine:
-    """The compiled search program (``kernels.search_fn``) of one decision: pads every call to
-    a fixed batch size, so each size compiles once, and counts the calls."""
+    """The search program of one decision, on the player's engine: ``kernels.search_fn`` (JAX;
+    every call padded to a fixed batch size, so each size compiles once) or
+    ``native.search_call`` (the native engine; same results, no padding); counts the calls."""
 
     def __init__(self, player: SearchPlayer, dev: DeviceArgs, info_scripts: tuple[str, ...], playout_scripts: tuple[str, str], stats: SearchStats):
         self.player = player
@@ -488,8 +530,18 @@ class Engine:
         use_ltd: bool = False,
     ) -> dict[str, Any]:
         """Run ``m <= k`` entries (leading axis of ``actions``; ``base`` [m, L] or one [L] state
-        for all) padded to ``k``; returns host arrays with ``k`` rows (the first ``m`` are real)."""
+        for all) padded to ``k``; returns host arrays with ``k`` rows (the first ``m`` are real).
+        The native engine runs the ``m`` entries only (no padding: nothing compiles per shape)."""
         m = actions.shape[0]
+        if self.dev.native is not None:
+            from hybridmarl.search.native import search_call
+
+            out = search_call(
+                self.dev.native, base, actions, mask, do_step, player, cap, use_ltd,
+                self.info_scripts, self.playout_scripts, int(self.player.key()[0]),
+            )
+            self.stats.calls += 1
+            return out
         if base.ndim == 1:
             base = np.broadcast_to(base, (k, base.shape[0]))
         elif m < k:
@@ -514,6 +566,9 @@ class Engine:
 
     def warmup(self, vec: np.ndarray, sizes: Sequence[int]) -> None:
         n = self.dev.num_slots
+        if self.dev.native is not None:  # one compiled program for every batch size
+            self.run(1, vec[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), 0, 0)
+            return
         for k in sorted(set(sizes)):
             jax.block_until_ready(
                 self.fn(k)(

@@ -24,6 +24,10 @@ The kernels:
   playout, which is how node expansion and the root's info use the same program).
 - :func:`pgs_fn`: Portfolio Greedy Search playouts where every unit follows its own script
   (``Game::playIndividualScripts``), scored by ``eval(player, LTD2)`` of the final state.
+
+The native engine's counterparts (``engine.native.search``, called through ``search.native``)
+return the same arrays; LTD / LTD2 here are :func:`ltd_scores`, summed unit by unit as the
+native kernels sum them.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.engine import rules as R
+from hybridmarl.engine import units as U
 from hybridmarl.engine.scripts import Script, get_script
 from hybridmarl.engine.state import GameState, Rules
 
@@ -142,6 +147,40 @@ def _is_move(codes: jax.Array) -> jax.Array:
     return (codes >= R.MOVE_ACTIONS[0]) & (codes <= R.MOVE_ACTIONS[-1])
 
 
+# ----------------------------------------------------------------------------- evaluation
+
+
+def ltd_scores(state: GameState, use_ltd: bool | jax.Array) -> jax.Array:
+    """int32 [2]: LTD2 (or, with ``use_ltd``, LTD) of both sides as ``rules.ltd2`` / ``rules.ltd``
+    compute them, but with each side's float32 sum taken unit by unit in slot order (SparCraft
+    sums unit by unit; XLA's reduction may add the terms in another order, which moves
+    ``int(1000 * sum / total)`` by one now and then). The native search kernels
+    (``engine.native.search``) sum in the same order, so both engines give equal values."""
+    dpf = jnp.asarray(U.TABLES.dpf)[state.utype]
+    alive = state.hp > 0
+    hpf = jnp.maximum(state.hp, 0).astype(jnp.float32)
+    term = jnp.where(use_ltd, hpf, jnp.sqrt(hpf)) * dpf
+    term = jnp.where(alive, term, jnp.float32(0.0))
+    acc = jnp.zeros(2, jnp.float32)
+    for u in range(state.hp.shape[-1]):
+        acc = acc + term[:, u]
+    totals = jnp.where(use_ltd, state.ltd_total, state.ltd2_total)
+    val = (1000.0 * acc / jnp.where(totals > 0, totals, 1.0)).astype(jnp.int32)
+    return jnp.where(alive.any(axis=1) & (totals > 0), val, 0)
+
+
+def evaluate(state: GameState, p: int | jax.Array, use_ltd: bool | jax.Array = False) -> jax.Array:
+    """``rules.evaluate(state, p)`` (score difference, +-100000 if exactly one side is dead, 0 if
+    both are) with the scores of :func:`ltd_scores`."""
+    score = ltd_scores(state, use_ltd)
+    dead = R.player_dead(state)
+    mine = jnp.where(p == 0, score[0] - score[1], score[1] - score[0])
+    me_dead = jnp.where(p == 0, dead[0], dead[1])
+    en_dead = jnp.where(p == 0, dead[1], dead[0])
+    bonus = jnp.where(en_dead & ~me_dead, 100000, jnp.where(me_dead & ~en_dead, -100000, 0))
+    return jnp.where(dead.all(), 0, mine + bonus).astype(jnp.int32)
+
+
 # ----------------------------------------------------------------------------- node info
 
 
@@ -156,7 +195,7 @@ def _state_info(key: jax.Array, state: GameState, rules: Rules, scripts: tuple[S
         )
     else:
         smoves = jnp.zeros((0, 2, n), jnp.int32)
-    ev = jnp.stack([R.evaluate(state, 0, "ltd2"), R.evaluate(state, 1, "ltd2")])
+    ev = jnp.stack([evaluate(state, 0), evaluate(state, 1)])
     # Transposition-table key material (``Unit::calculateHash``): living units in SparCraft's
     # sorted order, each with current position, relative timers, HP and type; dead units zero.
     idx = jnp.argsort(ctx.order, axis=1)
@@ -237,7 +276,7 @@ def _leaf_value(
     final, moves = _script_playout(
         key, state, rules, playout_scripts[0], playout_scripts[1], cap, player, use_key
     )
-    score = jnp.where(use_ltd, R.ltd(final), R.ltd2(final))
+    score = ltd_scores(final, use_ltd)
     diff = jnp.where(player == 0, score[0] - score[1], score[1] - score[0])
     value = jnp.where(dead.all(), 0, diff + bonus).astype(jnp.int32)
     return value, jnp.where(dead.all(), 0, moves).astype(jnp.int32), dead.all()
@@ -339,8 +378,7 @@ def pgs_fn(num_slots: int, batch: int, scripts: tuple[str, ...], turns: int, rul
             return R.apply_actions(s, ctx, acts, rules), k + 1, kk
 
         final, _, _ = jax.lax.while_loop(cond, body, (state, jnp.int32(0), key))
-        ev = jnp.stack([R.evaluate(final, 0, "ltd2"), R.evaluate(final, 1, "ltd2")])
-        return jnp.where(player == 0, ev[0], ev[1])
+        return evaluate(final, player)
 
     def run(key, vec, assign, player, utype, uid, ltd, ltd2, walkable):
         rules = _rules(walkable, rules_key)

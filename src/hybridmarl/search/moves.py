@@ -55,18 +55,25 @@ def unit_action_lists(legal: np.ndarray, acting: np.ndarray, enemy_order: np.nda
 
 def shuffle_move_actions(lists: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
     """``MoveArray::shuffleMoveActions`` with a seeded generator (see the module docstring)."""
+    lo, hi = MOVE_ACTIONS[0], MOVE_ACTIONS[-1]
     out = []
     for codes in lists:
-        is_move = (codes >= MOVE_ACTIONS[0]) & (codes <= MOVE_ACTIONS[-1])
-        moves = np.flatnonzero(is_move)
-        if len(moves) == 0:
+        cl = codes.tolist()
+        move_end = -1
+        for i in range(len(cl) - 1, -1, -1):
+            if lo <= cl[i] <= hi:
+                move_end = i
+                break
+        if move_end < 0:
             out.append(codes)
             continue
-        move_end = int(moves[-1])
-        before = np.flatnonzero(~is_move[:move_end])
-        # The MOVE block is contiguous and last but for PASS; moveBegin is the last non-MOVE
-        # index before the block's end, or 0 when every earlier action is a MOVE.
-        move_begin = int(before[-1]) if len(before) else 0
+        # moveBegin: the last non-MOVE index before moveEnd, or 0 when every earlier action is a
+        # MOVE (the MOVE block is contiguous and last but for PASS).
+        move_begin = 0
+        for i in range(move_end - 1, -1, -1):
+            if not lo <= cl[i] <= hi:
+                move_begin = i
+                break
         if move_end != move_begin:
             codes = codes.copy()
             seg = codes[move_begin:move_end].copy()
@@ -76,9 +83,8 @@ def shuffle_move_actions(lists: list[np.ndarray], rng: np.random.Generator) -> l
     return out
 
 
-def odometer_vectors(lists: Sequence[np.ndarray], count: int) -> list[np.ndarray]:
-    """The first ``count`` vectors of the cartesian product (unit 0 fastest), fewer if the
-    product is smaller."""
+def _odometer_rows(lists: Sequence[np.ndarray], count: int) -> list[list[int]]:
+    """The first ``count`` vectors of the cartesian product as Python lists (unit 0 fastest)."""
     sizes = [len(c) for c in lists]
     total = 1
     for s in sizes:
@@ -86,16 +92,24 @@ def odometer_vectors(lists: Sequence[np.ndarray], count: int) -> list[np.ndarray
         if total >= count:
             break
     count = min(count, total)
+    codes = [c.tolist() for c in lists]
+    units = range(len(codes))
     out = []
-    idx = [0] * len(lists)
+    idx = [0] * len(codes)
     for _ in range(count):
-        out.append(np.array([lists[u][idx[u]] for u in range(len(lists))], np.int32))
-        for u in range(len(lists)):
+        out.append([codes[u][idx[u]] for u in units])
+        for u in units:
             idx[u] += 1
             if idx[u] < sizes[u]:
                 break
             idx[u] = 0
     return out
+
+
+def odometer_vectors(lists: Sequence[np.ndarray], count: int) -> list[np.ndarray]:
+    """The first ``count`` vectors of the cartesian product (unit 0 fastest), fewer if the
+    product is smaller."""
+    return [np.array(r, np.int32) for r in _odometer_rows(lists, count)]
 
 
 def scatter(vec: np.ndarray, acting: np.ndarray, num_slots: int) -> np.ndarray:
@@ -131,5 +145,9 @@ def child_moves(
     limit = 1 if only_first else max_children
     out = [np.where(acting, m, 0).astype(np.int32) for m in ordered[:limit]]
     if len(out) < limit:
-        out += [scatter(v, acting, n) for v in odometer_vectors(lists, limit - len(out))]
+        rows = _odometer_rows(lists, limit - len(out))
+        if rows:
+            block = np.zeros((len(rows), n), np.int32)
+            block[:, np.flatnonzero(acting)] = np.array(rows, np.int32).reshape(len(rows), -1)
+            out += list(block)
     return out

@@ -89,6 +89,8 @@ class PGSPlayer(SearchPlayer):
     def _warmup(self, root: np.ndarray, dev: DeviceArgs) -> None:
         k = self._batch(dev.num_slots)
         self._engine(dev, SearchStats()).warmup(root, [1])
+        if dev.native is not None:
+            return
         out = self._fn(dev)(self.key(), root, np.zeros((k, 2, dev.num_slots), np.int32), np.zeros(k, np.int32), *dev.args)
         jax.block_until_ready(out)
 
@@ -102,7 +104,7 @@ class PGSPlayer(SearchPlayer):
         if not info["movers"][p]:
             return np.zeros(dev.num_slots, np.int32)
 
-        fn = self._fn(dev)
+        fn = self._fn(dev) if dev.native is None else None
         deadline = deadline_from(t0, o["time_ms"])
         budget = int(o["playouts"])
         k = len(self.portfolio)
@@ -114,8 +116,15 @@ class PGSPlayer(SearchPlayer):
         stats.extra["playouts_run"] = 0
 
         def run(assign: np.ndarray, sides: np.ndarray) -> np.ndarray:
-            """Playouts of ``m <= batch`` assignments (padded with copies of the first)."""
+            """Playouts of ``m <= batch`` assignments (padded with copies of the first on JAX)."""
             m = assign.shape[0]
+            if fn is None:
+                from hybridmarl.search.native import pgs_call
+
+                out = pgs_call(dev.native, root, assign, sides.astype(np.int32), self.scripts, int(o["playout_turns"]), int(self.key()[0]))
+                stats.calls += 1
+                stats.extra["playouts_run"] += m
+                return out
             if m < batch:
                 assign = np.concatenate([assign, np.repeat(assign[:1], batch - m, 0)])
                 sides = np.concatenate([sides, np.repeat(sides[:1], batch - m)])
