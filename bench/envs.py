@@ -14,9 +14,10 @@
     Target: env step <= 2x an engine turn.
 (b) ``pettingzoo_b1``: the PettingZoo adapter's ``step`` at B = 1 against the jitted functional
     ``Combat.step`` at B = 1 (``--pz-scenario``, m5v5), both from the same episodes (every agent
-    plays noop; the adapter in ``illegal_action="noop"`` mode and the env's own fallback turn that
-    into the same legal actions); per-step wall time including the device-to-host transfer a
-    caller needs (the functional loop reads ``done``). Target: overhead <= 30%.
+    plays noop; the adapter at its defaults, ``illegal_action="fallback"`` and dict observations,
+    and the env's own fallback turn that into the same legal actions); per-step wall time
+    including the device-to-host transfer a caller needs (the functional loop reads ``done``).
+    Target: overhead <= 30%.
 
 Usage::
 
@@ -167,7 +168,7 @@ def bench_pettingzoo(scenario: str, steps: int, seed: int) -> dict:
     keys = list(jax.random.split(jax.random.key(seed), 2 * steps + 64))
     _, st = reset(keys.pop())
     jax.block_until_ready(step(keys[0], st, zeros))  # compile
-    pz = PettingZooAdapter(env, illegal_action="noop")
+    pz = PettingZooAdapter(env)  # defaults: illegal actions replaced by the fallback
     pz.reset(seed=seed)
     pz.step(dict.fromkeys(pz.agents, 0))  # compile
     pz.reset(seed=seed)

@@ -351,16 +351,17 @@ def test_p_arrive_curriculum():
 
 
 def test_pettingzoo_parallel_api():
-    # The harness samples from the unmasked Discrete space, hence illegal_action="noop".
-    parallel_api_test(PettingZooAdapter(ENV, illegal_action="noop"), num_cycles=45)
+    # The array form: the harness samples from the unmasked Discrete space and the adapter's
+    # default replaces illegal actions by action 0. tests/envs/test_pettingzoo.py runs defaults.
+    parallel_api_test(PettingZooAdapter(ENV, obs_format="array"), num_cycles=45)
 
 
 def test_pettingzoo_seed():
-    parallel_seed_test(lambda: PettingZooAdapter(ENV, illegal_action="noop"), num_cycles=45)
+    parallel_seed_test(lambda: PettingZooAdapter(ENV, obs_format="array"), num_cycles=45)
 
 
 def test_pettingzoo_illegal_action_raises():
-    env = PettingZooAdapter(ENV)
+    env = PettingZooAdapter(ENV, illegal_action="raise")
     obs, infos = env.reset(seed=1)
     assert env.agents == [f"car_{i}" for i in range(N)]
     assert infos["car_4"]["action_mask"].tolist() == [1, 0]

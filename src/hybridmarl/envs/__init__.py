@@ -2,7 +2,7 @@
 
 >>> from hybridmarl import envs
 >>> env = envs.make("combat", scenario="m5v5", enemy="attack-weakest")
->>> pz = envs.make_pettingzoo("traffic_junction", illegal_action="noop")
+>>> pz = envs.make_pettingzoo("traffic_junction")  # dict observations with "action_mask"
 
 Known names: ``combat`` (:class:`hybridmarl.envs.combat.Combat`, the paper's SparCraft combat,
 Section 5.1) and ``traffic_junction`` (:class:`hybridmarl.envs.traffic_junction.TrafficJunction`,
@@ -57,13 +57,22 @@ def make_pettingzoo(
     *,
     params: Any = None,
     render_mode: str | None = None,
-    illegal_action: str = "raise",
+    illegal_action: str = "fallback",
+    obs_format: str = "dict",
     **kwargs: Any,
 ) -> Any:
     """A PettingZoo ``ParallelEnv`` (:class:`~hybridmarl.envs.pettingzoo.PettingZooAdapter`)
-    over ``make(name, **kwargs)``."""
+    over ``make(name, **kwargs)``.
+
+    By default observations are ``{"observation", "action_mask"}`` dicts (``obs_format="array"``
+    gives the bare observation arrays) and an illegal action is replaced by the agent's fallback
+    action and counted in ``infos`` (``illegal_action="raise"`` raises ``ValueError``)."""
     from hybridmarl.envs.pettingzoo import PettingZooAdapter
 
     return PettingZooAdapter(
-        make(name, **kwargs), params=params, render_mode=render_mode, illegal_action=illegal_action
+        make(name, **kwargs),
+        params=params,
+        render_mode=render_mode,
+        illegal_action=illegal_action,
+        obs_format=obs_format,
     )

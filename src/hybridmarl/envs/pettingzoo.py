@@ -22,17 +22,36 @@ Semantics:
   episode end is the task's definition of an episode, e.g. paper Section 5.3's fixed horizon)
   and ``agents`` empties. ``truncations`` are always False.
 - Rewards: the wrapped env's global team reward, given to every agent.
-- ``infos[agent]`` holds ``"action_mask"`` (int8 ``[num_actions]``), ``"active"``, and the
+- Observations (``obs_format``):
+
+  - ``"dict"`` (the default): ``obs[agent]`` is ``{"observation": float32 [obs_dim],
+    "action_mask": int8 [num_actions]}`` and ``observation_space(agent)`` is a
+    ``gymnasium.spaces.Dict`` of a ``Box`` and a ``Box(0, 1, (num_actions,), int8)``, the form
+    of PettingZoo's classic environments. PettingZoo's tools (``parallel_api_test``'s action
+    sampling, masked ``action_space(agent).sample(mask=obs[agent]["action_mask"])``) read the
+    mask from there.
+  - ``"array"``: ``obs[agent]`` is the bare float32 observation and ``observation_space(agent)``
+    the ``Box`` (the format before the dict form became the default); the mask is then only in
+    ``infos``.
+
+- ``infos[agent]`` holds ``"action_mask"`` (int8 ``[num_actions]``, in both formats),
+  ``"active"``, ``"illegal_action"`` (whether this agent's action of the step was illegal and
+  replaced), ``"illegal_action_count"`` (the agent's replaced actions so far this episode; the
+  adapter's ``illegal_action_count`` attribute is the episode total over all agents), and the
   wrapped env's ``info``: 0-d entries are shared by every agent, entries whose leading axis is
-  ``num_agents`` are sliced per agent, anything else is shared as is.
+  ``num_agents`` are sliced per agent, anything else is shared as is. (Combat's own
+  ``"illegal_actions"`` counts what reached the env: with the adapter replacing illegal actions
+  first, it stays 0.)
 - Actions: an agent missing from the action dict plays its *fallback action*: the env's
   ``fallback_actions(state)`` if it defines one (combat: noop where legal, else SparCraft's first
-  legal action), else action 0 (the no-op, legal for every Traffic Junction agent). An action
-  outside the agent's mask raises ``ValueError`` naming the agent and the action
-  (``illegal_action="raise"``, the default). With ``illegal_action="noop"`` it is replaced by
-  the fallback action instead (action 0 for TJ); use that for tools that sample from the
-  unmasked ``Discrete`` space, such as ``pettingzoo.test.parallel_api_test`` and
-  ``parallel_seed_test``.
+  legal action), else action 0 (the no-op, legal for every Traffic Junction agent). An integer
+  action in ``0..num_actions-1`` outside the agent's mask is, by default
+  (``illegal_action="fallback"``), replaced by that same fallback action and counted in
+  ``infos`` (see above), so tools that sample from the unmasked ``Discrete`` space (such as
+  ``pettingzoo.test.parallel_seed_test``) run as is. ``illegal_action="raise"`` raises
+  ``ValueError`` naming the agent, the action and its legal actions instead, for debugging a
+  policy. ``"noop"`` is accepted as an older name of ``"fallback"``. A non-integer action, one
+  outside ``0..num_actions-1`` or an unknown agent always raises ``ValueError``.
 - Seeding: ``reset(seed=s)`` re-seeds the adapter's JAX key, so episodes are reproducible;
   ``reset()`` without a seed continues the current key stream (seeded from OS entropy at first
   use). The key is split inside the jitted step (the same stream as splitting outside).
@@ -178,7 +197,11 @@ class PettingZooAdapter(ParallelEnv):
         env: the functional environment to wrap.
         params: its parameters (default: ``env.default_params``).
         render_mode: ``None`` or ``"rgb_array"``.
-        illegal_action: ``"raise"`` (default) or ``"noop"`` (replace by action 0).
+        illegal_action: ``"fallback"`` (default: replace an illegal action by the agent's
+            fallback action and count it in ``infos``) or ``"raise"`` (``ValueError``);
+            ``"noop"`` is an older name of ``"fallback"``.
+        obs_format: ``"dict"`` (default: ``{"observation", "action_mask"}`` per agent with a
+            ``Dict`` observation space) or ``"array"`` (the bare observation with a ``Box``).
     """
 
     metadata = {"render_modes": ["rgb_array"], "name": "hybridmarl", "is_parallelizable": True}
@@ -188,26 +211,40 @@ class PettingZooAdapter(ParallelEnv):
         env: MultiAgentEnv[Any, Any],
         params: Any = None,
         render_mode: str | None = None,
-        illegal_action: str = "raise",
+        illegal_action: str = "fallback",
+        obs_format: str = "dict",
     ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
-        if illegal_action not in ("raise", "noop"):
-            raise ValueError(f"illegal_action must be 'raise' or 'noop', got {illegal_action!r}")
+        if illegal_action == "noop":
+            illegal_action = "fallback"
+        if illegal_action not in ("fallback", "raise"):
+            raise ValueError(
+                f"illegal_action must be 'fallback' or 'raise', got {illegal_action!r}"
+            )
+        if obs_format not in ("dict", "array"):
+            raise ValueError(f"obs_format must be 'dict' or 'array', got {obs_format!r}")
         self.env = env
         self.params = env.default_params if params is None else params
         self.render_mode = render_mode
         self.illegal_action = illegal_action
+        self.obs_format = obs_format
         self.metadata = {**type(self).metadata, "name": env.name}
         self.possible_agents = list(env.agents)
         self.agents = []
         self._index = {agent: i for i, agent in enumerate(self.possible_agents)}
         self._fns = _compiled(env)
         low, high = getattr(env, "observation_bounds", (-np.inf, np.inf))
-        self._observation_spaces = {
-            a: gymnasium.spaces.Box(low, high, env.observation_shape, np.float32)
-            for a in self.possible_agents
-        }
+        self._observation_spaces: dict[str, gymnasium.spaces.Space[Any]] = {}
+        for a in self.possible_agents:
+            box = gymnasium.spaces.Box(low, high, env.observation_shape, np.float32)
+            if obs_format == "dict":
+                mask = gymnasium.spaces.Box(0, 1, (env.num_actions,), np.int8)
+                self._observation_spaces[a] = gymnasium.spaces.Dict(
+                    {"observation": box, "action_mask": mask}
+                )
+            else:
+                self._observation_spaces[a] = box
         self._action_spaces = {
             a: gymnasium.spaces.Discrete(env.num_actions) for a in self.possible_agents
         }
@@ -220,10 +257,13 @@ class PettingZooAdapter(ParallelEnv):
         self._active: np.ndarray | None = None
         self._fallback: np.ndarray | None = None
         self._remove_inactive = bool(getattr(env, "remove_inactive_agents", False))
+        n = len(self.possible_agents)
+        self._illegal_step = np.zeros((n,), bool)
+        self._illegal_counts = np.zeros((n,), np.int64)
 
     # -- spaces ----------------------------------------------------------------------------------
 
-    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
+    def observation_space(self, agent: str) -> gymnasium.spaces.Space[Any]:
         return self._observation_spaces[agent]
 
     def action_space(self, agent: str) -> gymnasium.spaces.Discrete:
@@ -233,7 +273,7 @@ class PettingZooAdapter(ParallelEnv):
 
     def reset(
         self, seed: int | None = None, options: dict[str, Any] | None = None
-    ) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
+    ) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
         del options
         if seed is not None:
             self._key = jax.random.key(seed)
@@ -249,12 +289,14 @@ class PettingZooAdapter(ParallelEnv):
             self.agents = [a for a in self.possible_agents if self._active[self._index[a]]]
         else:
             self.agents = list(self.possible_agents)
+        self._illegal_step[:] = False
+        self._illegal_counts[:] = 0
         return self._split_obs(obs), self._infos({})
 
     def step(
         self, actions: dict[str, Any]
     ) -> tuple[
-        dict[str, np.ndarray],
+        dict[str, Any],
         dict[str, float],
         dict[str, bool],
         dict[str, bool],
@@ -263,6 +305,7 @@ class PettingZooAdapter(ParallelEnv):
         if not self.agents or self._key is None or self._mask is None or self._fallback is None:
             raise RuntimeError("the episode is over (or never started): call reset() first")
         joint = self._fallback.astype(np.int32).copy()
+        illegal = np.zeros_like(self._illegal_step)
         for agent, action in actions.items():
             if agent not in self._index:
                 raise ValueError(f"unknown agent {agent!r}; agents are {self.possible_agents}")
@@ -276,8 +319,11 @@ class PettingZooAdapter(ParallelEnv):
                         f"active={bool(self._active[i]) if self._active is not None else '?'})"
                     )
                 a = int(self._fallback[i])
+                illegal[i] = True
             joint[i] = a
         self._key, self._state, buf = self._fns.step(self._key, self._state, joint, self.params)
+        self._illegal_step = illegal
+        self._illegal_counts += illegal
         host = self._fns.layouts["step"].unpack(np.asarray(buf))
         obs, reward, done, info, self._mask, self._active, self._fallback = host
         assert self._active is not None
@@ -314,6 +360,11 @@ class PettingZooAdapter(ParallelEnv):
         self._state = None
 
     @property
+    def illegal_action_count(self) -> int:
+        """Illegal actions replaced by the fallback action so far this episode, all agents."""
+        return int(self._illegal_counts.sum())
+
+    @property
     def env_state(self) -> Any:
         """The wrapped env's current state pytree (e.g. to run a demonstrator on it)."""
         return self._state
@@ -331,8 +382,18 @@ class PettingZooAdapter(ParallelEnv):
             )
         return a
 
-    def _split_obs(self, obs: np.ndarray) -> dict[str, np.ndarray]:
-        return {a: np.array(obs[self._index[a]], np.float32) for a in self.agents}
+    def _split_obs(self, obs: np.ndarray) -> dict[str, Any]:
+        if self.obs_format == "array":
+            return {a: np.array(obs[self._index[a]], np.float32) for a in self.agents}
+        assert self._mask is not None
+        masks = self._mask.astype(np.int8)
+        return {
+            a: {
+                "observation": np.array(obs[self._index[a]], np.float32),
+                "action_mask": masks[self._index[a]].copy(),
+            }
+            for a in self.agents
+        }
 
     def _infos(self, info: dict[str, Any]) -> dict[str, dict[str, Any]]:
         assert self._mask is not None and self._active is not None
@@ -351,7 +412,12 @@ class PettingZooAdapter(ParallelEnv):
         infos: dict[str, dict[str, Any]] = {}
         for agent in self.agents:
             i = self._index[agent]
-            entry: dict[str, Any] = {"action_mask": masks[i], "active": bool(self._active[i])}
+            entry: dict[str, Any] = {
+                "action_mask": masks[i],
+                "active": bool(self._active[i]),
+                "illegal_action": bool(self._illegal_step[i]),
+                "illegal_action_count": int(self._illegal_counts[i]),
+            }
             entry.update(shared)
             for k, v in per_agent.items():
                 entry[k] = v[i].item() if v.ndim == 1 else v[i].copy()
