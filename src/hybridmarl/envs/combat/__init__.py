@@ -96,7 +96,8 @@ counts the replaced actions of the step; ``fallback_actions(state)`` gives the r
 agent as env actions. With ``Combat(debug=True)`` an illegal action is an error instead: a
 ``ValueError`` naming the agent, its action and its legal actions when ``step`` runs eagerly,
 or (under ``jit``) the same message raised from a ``jax.debug.callback``, which surfaces as a
-``JaxRuntimeError``. The PettingZoo adapter raises ``ValueError`` by default.
+``JaxRuntimeError``. The PettingZoo adapter replaces an illegal action by the fallback and
+counts it in ``infos`` by default (``illegal_action="raise"`` raises instead).
 
 Observation (per agent, float32, length ``21 + 14 * (K_a + K_e)``, ``K_a = K_e = 10``)
 -----------------------------------------------------------------------------------
@@ -209,10 +210,12 @@ PettingZoo
 ----------
 ``hybridmarl.envs.make_pettingzoo("combat", ...)`` (``PettingZooAdapter``): the agents are our
 living units; a unit's agent gets ``terminations[agent] = True`` on the step it dies and leaves
-``agents`` (``Combat.remove_inactive_agents``); the action mask is
-``infos[agent]["action_mask"]``; an agent missing from the action dict plays its
-:meth:`Combat.fallback_actions` entry; an illegal action raises ``ValueError`` (or, with
-``illegal_action="noop"``, is replaced by the fallback action).
+``agents`` (``Combat.remove_inactive_agents``); an observation is
+``{"observation": ..., "action_mask": ...}`` as in PettingZoo's classic environments
+(``obs_format="array"``: the bare vector), and the mask is also ``infos[agent]["action_mask"]``;
+an agent missing from the action dict plays its :meth:`Combat.fallback_actions` entry; an
+illegal action is replaced by that fallback and counted in ``infos`` (with
+``illegal_action="raise"``, it raises ``ValueError``). docs/environments.md has the details.
 
 One-step look-ahead (paper Section 4.2, Alg. 1)
 -----------------------------------------------

@@ -132,7 +132,8 @@ a square per car coloured by route (one hue per entry, one shade per turn; overl
 stripes), a red frame on cells holding two or more cars, and ``t`` in the corner.
 ``hybridmarl.envs.pettingzoo.PettingZooAdapter(TrafficJunction())`` is a PettingZoo
 ``ParallelEnv``: all ``N`` car slots stay agents for the whole episode (an empty slot gets a
-zero observation and only action 0 legal; the mask is ``infos[agent]["action_mask"]``).
+zero observation and only action 0 legal; the mask is in the observation dict,
+``obs[agent]["action_mask"]``, and in ``infos[agent]["action_mask"]``).
 ``hybridmarl.envs.video.write_video`` turns rendered frames into a GIF.
 
 Modules
