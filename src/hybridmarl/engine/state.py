@@ -149,52 +149,8 @@ def build_state(units: Sequence[UnitSpec], num_slots: int | None = None) -> Game
     lays it out. All units start with full HP, no previous action and both timers at frame 0.
     """
     n = num_slots_for(units) if num_slots is None else num_slots
-    utype = np.zeros((2, n), np.int32)
-    uid = np.tile(PAD_ID_BASE + np.arange(n, dtype=np.int32), (2, 1))
-    x = np.zeros((2, n), np.int32)
-    y = np.zeros((2, n), np.int32)
-    hp = np.zeros((2, n), np.int32)
-    count = [0, 0]
-    for i, u in enumerate(units):
-        p = u.player
-        s = count[p]
-        if s >= n:
-            raise ValueError(f"player {p} has more than {n} units")
-        t = U.type_id(u.type)
-        utype[p, s], uid[p, s], x[p, s], y[p, s] = t, i, u.x, u.y
-        hp[p, s] = U.TABLES.max_hp[t]
-        count[p] += 1
-    present = hp > 0
-    max_hp = U.TABLES.max_hp[utype].astype(np.float32)
-    dpf = U.TABLES.dpf[utype]
-    # SparCraft accumulates these in float, unit by unit in id order within each player.
-    ltd = np.zeros(2, np.float32)
-    ltd2 = np.zeros(2, np.float32)
-    for p in range(2):
-        for s in range(n):
-            if present[p, s]:
-                ltd[p] = np.float32(ltd[p] + np.float32(max_hp[p, s] * dpf[p, s]))
-                ltd2[p] = np.float32(ltd2[p] + np.float32(np.sqrt(max_hp[p, s]) * dpf[p, s]))
-    zeros = np.zeros((2, n), np.int32)
-    return GameState(
-        utype=jnp.asarray(utype),
-        uid=jnp.asarray(uid),
-        x=jnp.asarray(x),
-        y=jnp.asarray(y),
-        px=jnp.asarray(x),
-        py=jnp.asarray(y),
-        t_act=jnp.asarray(zeros),
-        last=jnp.asarray(zeros),
-        hp=jnp.asarray(hp),
-        t_move=jnp.asarray(zeros),
-        t_attack=jnp.asarray(zeros),
-        time=jnp.asarray(0, jnp.int32),
-        turn=jnp.asarray(0, jnp.int32),
-        stale=jnp.asarray(0, jnp.int32),
-        prev_hp_sum=jnp.asarray(hp.sum(axis=1).astype(np.int32)),
-        ltd_total=jnp.asarray(ltd),
-        ltd2_total=jnp.asarray(ltd2),
-    )
+    arrays = build_batch_arrays([units], n)
+    return GameState(**{k: jnp.asarray(v[0]) for k, v in arrays.items()})
 
 
 def stack_states(states: Sequence[GameState]) -> GameState:
@@ -247,7 +203,8 @@ def batch_arrays_from_layout(
     present = hp > 0
     max_hp = U.TABLES.max_hp[utype].astype(np.float32)
     dpf = U.TABLES.dpf[utype]
-    # Same float32 accumulation as build_state (slot by slot), vectorised over states and players.
+    # SparCraft accumulates these in float, unit by unit in slot order within each player:
+    # the same float32 sums, vectorised over states and players.
     ltd = np.zeros((b, 2), np.float32)
     ltd2 = np.zeros((b, 2), np.float32)
     for s in range(n):
