@@ -82,6 +82,7 @@ from typing import Any, Protocol, runtime_checkable
 import jax
 import numpy as np
 
+from hybridmarl.engine.backend import resolve_engine
 from hybridmarl.engine.scripts import canonical_name
 from hybridmarl.engine.state import GameState, Rules
 from hybridmarl.search import kernels as K
@@ -376,12 +377,6 @@ class ScriptPlayer:
         return out
 
 
-def resolve_engine(value: str) -> str:
-    """``native`` or ``jax`` for an ``engine`` option value (``auto``: native when JAX's default
-    backend is the CPU)."""
-    if value == "auto":
-        return "native" if jax.default_backend() == "cpu" else "jax"
-    return value
 
 
 class DeviceArgs:

@@ -9,6 +9,12 @@
   the legal argmax of the updated actor;
 - 'brd_q_fn': Alg. 1's Q estimate (Eq. 2's one step, K steps, or to the end).
 
+With the native engine ('engine', resolved by 'Learner.engine'), 'train_chunk' runs the same
+steps as a host loop instead of one 'lax.scan': per env step one jitted call for the actor's
+actions, one host call for the whole of Alg. 1 on the native engine ('brd_native'), and one
+jitted call for the actor update (on the rows of the agents that have a choice only, gathered
+and padded to a few fixed sizes: the same loss) and the env step.
+
 'build_learner' caches learners under 'training.config.compile_key' of the config, so runs that
 differ only in run-only fields (seed, budgets, paths, cadences) share compiled programs.
 """
@@ -16,17 +22,19 @@ differ only in run-only fields (seed, budgets, paths, cadences) share compiled p
 from __future__ import annotations
 
 import functools
+import time
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
 from hybridmarl.algos.hybrid.config import HybridConfig
 from hybridmarl.training import networks as nets
 from hybridmarl.training.config import compile_key
 from hybridmarl.training.losses import actor_loss, advantages, bc_loss, critic_loss
-from hybridmarl.training.rollout import Pool, pool_steps
+from hybridmarl.training.rollout import Pool, pool_steps, select_tree
 from hybridmarl.training.task import Task
 
 
@@ -62,6 +70,21 @@ class Learner:
         )
         self.fit_critic = jax.jit(functools.partial(self._fit_critic, batch=cfg.critic_batch_size))
         self.critic_values = jax.jit(self._critic_values)
+        self.engine, self.engine_note = resolve_brd_engine(task, cfg, demo_script)
+        #: Seconds spent per part of the native chunk (bench/train_step.py reads them).
+        self.timing: dict[str, float] = {}
+        if self.engine == "native":
+            from hybridmarl.algos.hybrid.brd_native import NativeBRD
+
+            lookahead = simulated_steps(cfg)
+            self.native_brd = NativeBRD(
+                task, gamma=cfg.gamma, iterations=cfg.brd_iterations, lookahead=lookahead,
+                continuation=demo_script if lookahead > 1 else None,
+            )
+            self._native_pre = jax.jit(functools.partial(self._native_pre_fn, start=cfg.brd_start))
+            self._native_post = jax.jit(functools.partial(self._native_post_fn, actor_steps=cfg.actor_steps, target=cfg.actor_target))
+            self._chunk_steps = cfg.chunk_steps
+            self.train_chunk = self._train_chunk_native
 
     # Phase 2's data: A^D plays from random start states.
     def _demo_chunk(self, pool: Pool, clone_vars: Any, *, steps: int):
@@ -177,6 +200,108 @@ class Learner:
         return pool, actor, out
 
 
+    # Phase 3 on the native engine: a host loop over the chunk's env steps.
+    def _native_pre_fn(self, pool: Pool, actor: nets.NetState, clone_vars: Any, *, start: str):
+        """The step's keys (split as in 'pool_steps'), legal actions, the actor's legal argmax
+        and Alg. 1's start actions."""
+        key = jax.random.wrap_key_data(pool.key)
+        key, k_act, k_step, k_reset = jax.random.split(key, 4)
+        legal = jax.vmap(self.task.avail)(pool.states)
+        k_demo, _ = jax.random.split(k_act)
+        a_actor = nets.actor_actions(self.actor_mod, actor, pool.obs, legal)
+        a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, pool.states, pool.obs, legal)
+        return jax.random.key_data(key), k_step, k_reset, legal, a_actor, a0
+
+    def _native_post_fn(self, pool: Pool, actor: nets.NetState, key_data: jax.Array, k_step: jax.Array, k_reset: jax.Array,
+                        legal: jax.Array, a_actor: jax.Array, brd: dict[str, jax.Array], rows: jax.Array, valid: jax.Array,
+                        *, actor_steps: int, target: str):
+        """Eq. 7, the actor's update (Eq. 8, or cross-entropy toward ã_g) on the gathered rows of
+        the agents with a choice, the updated actor's legal argmax, the env step and resets."""
+        task, mod, tx = self.task, self.actor_mod, self.actor_tx
+        b, n, na = legal.shape
+        obs = pool.obs
+        adv = advantages(brd["q"], legal)
+        weight = brd["q_valid"] & (jnp.sum(legal, -1) >= 2)
+        any_w = jnp.any(valid)
+        w = valid
+        bn_mask = jnp.where(any_w, w, jnp.ones_like(w))
+        x = obs.reshape(b * n, -1)[rows]
+        lg = legal.reshape(b * n, na)[rows]
+
+        def loss_fn(params, batch_stats):
+            logits, bs = nets.apply_train(mod, params, batch_stats, x, mask=bn_mask)
+            if target == "best":
+                loss = bc_loss(logits, brd["actions"].reshape(b * n)[rows], lg, w)
+            else:
+                loss = actor_loss(logits, adv.reshape(b * n, na)[rows], lg, w)
+            return loss, (bs, None)
+
+        def sgd_step(_, c):
+            net, _ = c
+            net, loss, _ = nets.sgd_step(net, tx, loss_fn)
+            return net, loss
+
+        new, loss = jax.lax.fori_loop(0, actor_steps, sgd_step, (actor, jnp.zeros((), jnp.float32)))
+        actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
+        actions = nets.actor_actions(mod, actor, obs, legal)
+        # The env step and the resets of 'pool_steps'.
+        obs2, s2, r, d, info = jax.vmap(task.step)(jax.random.split(k_step, b), pool.states, actions)
+        stats = jax.vmap(task.episode_stats)(s2, info)
+        obs_r, s_r = jax.vmap(task.reset)(jax.random.split(k_reset, b))
+        pool2 = Pool(states=select_tree(d, s_r, s2), obs=select_tree(d, obs_r, obs2), key=key_data)
+        wf = weight.astype(jnp.float32)
+        nw = jnp.maximum(jnp.sum(wf), 1.0)
+        aux = {
+            "actor_loss": loss,
+            "brd_sweeps": brd["sweeps"],
+            "brd_visits": brd["evaluated"] / b,
+            "brd_simulated": brd["simulated"] / b,
+            "brd_changes": jnp.mean(brd["changes"].astype(jnp.float32)),
+            "q_gain": jnp.nanmean(brd["q_final"] - brd["q_init"]),
+            "q_final": jnp.nanmean(brd["q_final"]),
+            "adv_max": jnp.sum(jnp.max(adv, -1) * wf) / nw,
+            "agree": jnp.sum((a_actor == brd["actions"]) * wf) / nw,
+            "deciders": jnp.sum(wf) / b,
+        }
+        out = {"state": pool.states, "reward": r, "done": d, "stats": stats, "aux": aux}
+        return pool2, actor, out
+
+    def _train_chunk_native(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any):
+        """'train_chunk' on the native engine: the same steps, one host call of Alg. 1 each."""
+        from hybridmarl.algos.hybrid.brd_native import NumpyMLP, bucket
+
+        value = None if self.native_brd.steps >= TO_THE_END else NumpyMLP(jax.device_get(critic_vars))
+        outs = []
+        timing = self.timing
+        for _ in range(self._chunk_steps):
+            t0 = time.perf_counter()
+            key_data, k_step, k_reset, legal, a_actor, a0 = self._native_pre(pool, actor, clone_vars)
+            legal_np, a0_np, states_np = jax.device_get((legal, a0, pool.states))
+            t1 = time.perf_counter()
+            res = self.native_brd(states_np, a0_np, legal_np, value)
+            t2 = time.perf_counter()
+            weight = res.q_valid & (legal_np.sum(-1) >= 2)
+            flat = np.flatnonzero(weight.reshape(-1))
+            size = bucket(flat.size, weight.size)
+            rows = np.zeros(size, np.int32)
+            rows[: flat.size] = flat
+            valid = np.arange(size) < flat.size
+            brd = {
+                "actions": res.actions, "q": res.q, "q_valid": res.q_valid, "q_init": res.q_init,
+                "q_final": res.q_final, "changes": res.changes, "sweeps": np.float32(res.sweeps),
+                "evaluated": np.float32(res.evaluated), "simulated": np.float32(res.simulated),
+            }
+            pool, actor, out = self._native_post(pool, actor, key_data, k_step, k_reset, legal, a_actor, brd, rows, valid)
+            outs.append(jax.device_get(out))
+            t3 = time.perf_counter()
+            for k, v in (("host_in", t1 - t0), ("brd", t2 - t1), ("brd_simulation", res.seconds_simulation),
+                         ("brd_critic", res.seconds_critic), ("update_and_step", t3 - t2)):
+                timing[k] = timing.get(k, 0.0) + v
+            timing["steps"] = timing.get("steps", 0.0) + 1
+        stacked = jax.tree.map(lambda *xs: np.stack(xs), *outs)
+        return pool, actor, stacked
+
+
 #: Simulated steps that stand for "to the end of the episode" (``lookahead_steps=0``); the Q
 #: loop stops early once every simulated game has ended.
 TO_THE_END = 1_000_000
@@ -193,6 +318,25 @@ def continuation_policy(cfg: HybridConfig) -> str:
     return cfg.brd_start if cfg.lookahead_policy == "start" else cfg.lookahead_policy
 
 
+def resolve_brd_engine(task: Task, cfg: HybridConfig, demo_script: str | None) -> tuple[str, str]:
+    """The engine Alg. 1 runs on for ``cfg.engine`` ('auto': native on a CPU where it applies)
+    and a note saying why when 'auto' fell back to jax. Raises ``ValueError`` when 'native' was
+    asked for and does not apply."""
+    if cfg.engine == "jax":
+        return "jax", ""
+    from hybridmarl.algos.hybrid.brd_native import native_support
+    from hybridmarl.engine.backend import resolve_engine
+
+    why = native_support(task, lookahead=simulated_steps(cfg), continuation=continuation_policy(cfg), demo_script=demo_script)
+    if cfg.engine == "native":
+        if why:
+            raise ValueError(f"--engine native: {why}")
+        return "native", ""
+    if resolve_engine("auto") != "native":
+        return "jax", ""
+    return ("jax", f"Alg. 1 runs on the jax engine: {why}") if why else ("native", "")
+
+
 def build_learner(task: Task, cfg: HybridConfig, demo_script: str | None) -> Learner:
     """The learner of a task and config, compiled once per (task, compile key, demonstrator
     script)."""
@@ -204,4 +348,4 @@ def _cached_learner(task: Task, key: HybridConfig, demo_script: str | None) -> L
     return Learner(task, key, demo_script)
 
 
-__all__ = ["TO_THE_END", "Learner", "build_learner", "continuation_policy", "simulated_steps"]
+__all__ = ["TO_THE_END", "Learner", "build_learner", "continuation_policy", "resolve_brd_engine", "simulated_steps"]

@@ -107,6 +107,8 @@ def train(cfg: HybridConfig) -> TrainResult:
         dataset = D.load_dataset(cfg.demonstrator, expect=task) if cfg.demonstrator_is_dataset() else None
         demo_script = None if dataset is not None else cfg.demonstrator_name()
         learner = build_learner(task, cfg, demo_script)
+        if learner.engine_note:
+            print(learner.engine_note)
         k_actor, k_critic, k_clone, k_pool, k_run = jax.random.split(jax.random.key(cfg.seed), 5)
         actor = nets.init_net(learner.actor_mod, k_actor, task.obs_dim, learner.actor_tx)
         critic = nets.init_net(learner.critic_mod, k_critic, task.critic_dim, learner.critic_tx)

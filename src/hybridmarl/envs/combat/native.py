@@ -1,0 +1,279 @@
+"""The combat environment's step on the native engine: Numba kernels over NumPy states.
+
+:class:`~hybridmarl.envs.combat.env.Combat` is the reference; these kernels give the same env
+step (action masks and illegal-action fallback, the decision turn and the enemy-only turns that
+follow it, the reward, ``done``) and the same critic features, on the native engine's
+structure-of-arrays state (``hybridmarl.engine.native``). They serve the CPU workloads that call
+the env step many times from one state, such as Alg. 1's simulation of candidate joint actions
+(``hybridmarl.algos.hybrid.brd_native``). The tests hold them equal to the JAX env
+(``tests/envs/test_combat_native.py``).
+
+One game's fields are views ``[2, U]`` (``engine.native.kernels.FIELDS`` order) plus the
+per-batch ``time``/``turn``/``stale`` ``[B]`` and ``prev_hp_sum`` ``[B, 2]`` arrays indexed by
+the game ``g``, as in the engine kernels. The enemy (and a scripted continuation of our side)
+is a script code (``engine.native.kernels.SCRIPT_CODES``); the ``random`` script draws from the
+native engine's own generator, not JAX's (docs/engine-backends.md).
+"""
+
+# ruff: noqa: SIM102, SIM108
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from hybridmarl.engine.native.kernels import (
+    ATTACK_BASE,
+    DIR_X,
+    INF,
+    LAST_MOVE,
+    MOVE_BASE,
+    PASS_ACTION,
+    RANDOM,
+    RANGE_SQ,
+    RELOAD_ACTION,
+    SLOT_BITS,
+    _d2,
+    _rng_base,
+    apply_turn,
+    choose_actions,
+    first_legal_action,
+    game_over,
+    minimum_free_time,
+    prepare_turn,
+)
+from hybridmarl.envs.combat.observe import HP_SCALE, POS_SCALE, TIME_SCALE
+from hybridmarl.envs.combat.view import ATTACK_OFFSET, MOVE_OFFSET, NOOP
+
+#: Critic features per state (``Combat.critic_feature_size``: 2 sides x 17 statistics + 1).
+CRITIC_FEATURES = 35
+
+_ENEMY_SALT = np.uint64(0x5555555555555555)
+
+assert DIR_X.shape == (4,)  # the four engine moves, env actions MOVE_OFFSET .. MOVE_OFFSET + 3
+
+
+@njit(cache=True, inline="always")
+def enemy_ranks(hp, rank_slot, rank_of_slot):
+    """``view.make_view``'s HP ranks of the living enemies (ascending HP, ties to the lower
+    slot); returns how many are alive."""
+    n = hp.shape[1]
+    alive_count = 0
+    for j in range(n):
+        if hp[1, j] > 0:
+            alive_count += 1
+    for j in range(n):
+        rank_of_slot[j] = -1
+        if hp[1, j] > 0:
+            key = (hp[1, j] << SLOT_BITS) | j
+            r = 0
+            for i in range(n):
+                if hp[1, i] > 0 and ((hp[1, i] << SLOT_BITS) | i) < key:
+                    r += 1
+            rank_of_slot[j] = r
+            rank_slot[r] = j
+    return alive_count
+
+
+@njit(cache=True, inline="always")
+def _env_action_legal(u, a, n_alive, rank_slot, num_actions, utype, ws):
+    """``view.action_mask`` at one (agent, action): the env action ``a`` of our unit ``u``."""
+    acting, can_atk, move_ok, alive = ws[6], ws[7], ws[8], ws[5]
+    if a < 0 or a >= num_actions:
+        return False
+    if not acting[0, u]:
+        return a == NOOP
+    if a == NOOP:
+        if not can_atk[0, u]:
+            return True  # RELOAD is legal
+        anything = False
+        for d in range(4):
+            if move_ok[0, u, d]:
+                anything = True
+        if not anything:
+            rsq = RANGE_SQ[utype[0, u]]
+            for j in range(alive.shape[1]):
+                if alive[1, j] and rsq >= _d2(ws[0], ws[1], 0, u, j):
+                    anything = True
+        return not anything  # PASS is legal only if nothing else is
+    if a < ATTACK_OFFSET:
+        return move_ok[0, u, a - MOVE_OFFSET]
+    k = a - ATTACK_OFFSET
+    if k >= n_alive or not can_atk[0, u]:
+        return False
+    j = rank_slot[k]
+    return alive[1, j] and RANGE_SQ[utype[0, u]] >= _d2(ws[0], ws[1], 0, u, j)
+
+
+@njit(cache=True)
+def _our_turn(hp, t_move, t_attack):
+    p0 = minimum_free_time(hp, t_move, t_attack, 0)
+    p1 = minimum_free_time(hp, t_move, t_attack, 1)
+    return p0 <= p1 and p0 < INF
+
+
+@njit(cache=True)
+def _hp_diff(hp):
+    d = 0
+    for s in range(hp.shape[1]):
+        d += max(hp[0, s], 0) - max(hp[1, s], 0)
+    return d
+
+
+@njit(cache=True)
+def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+             prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
+             stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot):
+    """``Combat.step`` of game ``g`` (unit-field views ``[2, U]``) with env ``actions``
+    ``[num_agents]``, in place. Returns ``(reward, done)``; a finished game is left as it is.
+
+    An illegal action becomes the unit's first legal engine action. The decision turn plays our
+    engine actions and the enemy script's, then enemy-only turns follow until one of our units
+    acts or the game is over. ``last_actions`` is not kept (no caller here needs it)."""
+    if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
+        return np.float32(0.0), True
+    diff_old = _hp_diff(hp)
+    n = hp.shape[1]
+    prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+    n_alive = enemy_ranks(hp, rank_slot, rank_of_slot)
+    chosen = ws[4]
+    for u in range(n):
+        chosen[0, u] = PASS_ACTION
+    for u in range(num_agents):
+        a = actions[u]
+        if not _env_action_legal(u, a, n_alive, rank_slot, num_actions, utype, ws):
+            chosen[0, u] = first_legal_action(0, u, utype, ws)
+        elif a == NOOP:
+            chosen[0, u] = PASS_ACTION if ws[7][0, u] else RELOAD_ACTION
+        elif a < ATTACK_OFFSET:
+            chosen[0, u] = MOVE_BASE + a - MOVE_OFFSET
+        else:
+            chosen[0, u] = ATTACK_BASE + rank_slot[a - ATTACK_OFFSET]
+    rng = np.uint64(0)
+    first = True
+    while True:
+        if not first:
+            prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+            for u in range(n):
+                chosen[0, u] = PASS_ACTION
+        if enemy == RANDOM:  # the native generator, keyed by (seed, game, turn)
+            rng = _rng_base(seed, game_id, turn[g]) ^ _ENEMY_SALT
+        choose_actions(enemy, 1, utype, x, y, hp, rng, ws)
+        apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+                   prev_hp_sum, overkill_pass, ws)
+        first = False
+        if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
+            break
+        if _our_turn(hp, t_move, t_attack):
+            break
+    reward = np.float32(_hp_diff(hp) - diff_old) / np.float32(max(init_hp0, 1))
+    return reward, game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns)
+
+
+@njit(cache=True)
+def script_env_actions(g, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+                       walkable, script, num_agents, stalemate_limit, max_turns, seed, game_id, ws,
+                       rank_slot, rank_of_slot, out):
+    """``Combat.script_policy(script)`` at game ``g``: the script's engine actions for our side
+    as env actions (noop for units that do not act, and everywhere once the game is over)."""
+    for u in range(num_agents):
+        out[u] = NOOP
+    if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
+        return
+    prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+    enemy_ranks(hp, rank_slot, rank_of_slot)
+    rng = np.uint64(0)
+    if script == RANDOM:
+        rng = _rng_base(seed, game_id, turn[g])
+    choose_actions(script, 0, utype, x, y, hp, rng, ws)
+    n = hp.shape[1]
+    for u in range(num_agents):
+        if not ws[6][0, u]:
+            continue
+        code = ws[4][0, u]
+        if code <= RELOAD_ACTION:
+            out[u] = NOOP
+        elif code < ATTACK_BASE:
+            out[u] = code - MOVE_BASE + MOVE_OFFSET
+        else:
+            j = min(max(code - ATTACK_BASE, 0), n - 1)
+            out[u] = ATTACK_OFFSET + rank_of_slot[j]
+
+
+@njit(cache=True, inline="always")
+def _side_stats(values, alive, p, out, at):
+    """mean, variance, min, max of ``values[p]`` over the living units (0s with none)."""
+    n = values.shape[1]
+    count = 0
+    total = np.float32(0.0)
+    for s in range(n):
+        if alive[p, s]:
+            count += 1
+            total += values[p, s]
+    nf = np.float32(max(count, 1))
+    mean = total / nf
+    var = np.float32(0.0)
+    vmin = np.float32(np.inf)
+    vmax = np.float32(-np.inf)
+    for s in range(n):
+        if alive[p, s]:
+            dv = values[p, s] - mean
+            var += dv * dv
+            vmin = min(vmin, values[p, s])
+            vmax = max(vmax, values[p, s])
+    out[at] = mean
+    out[at + 1] = var / nf
+    out[at + 2] = vmin if count > 0 else np.float32(0.0)
+    out[at + 3] = vmax if count > 0 else np.float32(0.0)
+    return mean
+
+
+@njit(cache=True)
+def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agents, num_enemies, values, out):
+    """``observe.critic_features`` of one game (``values``: float32 ``[2, U]`` scratch)."""
+    n = hp.shape[1]
+    alive = hp > 0
+    base = 0
+    centroid = np.zeros(4, np.float32)
+    for p in range(2):
+        count = 0
+        for s in range(n):
+            if alive[p, s]:
+                count += 1
+        size = num_agents if p == 0 else num_enemies
+        out[base] = np.float32(count) / np.float32(size)
+        base += 1
+        for s in range(n):
+            values[p, s] = np.float32(max(hp[p, s], 0)) / np.float32(HP_SCALE)
+        _side_stats(values, alive, p, out, base)
+        base += 4
+        for s in range(n):
+            values[p, s] = np.float32(max(t_attack[p, s] - t, 0)) / np.float32(TIME_SCALE)
+        _side_stats(values, alive, p, out, base)
+        base += 4
+        for axis in range(2):
+            for s in range(n):
+                pos = x[p, s] if axis == 0 else y[p, s]
+                prev = px[p, s] if axis == 0 else py[p, s]
+                if last[p, s] == LAST_MOVE and t == t_act[p, s]:
+                    pos = prev
+                elif last[p, s] == LAST_MOVE and t < t_move[p, s]:
+                    duration = max(t_move[p, s] - t_act[p, s], 1)
+                    ratio = np.float32(t - t_act[p, s]) / np.float32(duration)
+                    pos = prev + int(np.float32(pos - prev) * ratio)
+                values[p, s] = np.float32(pos) / np.float32(POS_SCALE)
+            centroid[2 * p + axis] = _side_stats(values, alive, p, out, base)
+            base += 4
+    both = False
+    a0 = False
+    a1 = False
+    for s in range(n):
+        a0 = a0 or alive[0, s]
+        a1 = a1 or alive[1, s]
+    both = a0 and a1
+    dx = centroid[0] - centroid[2]
+    dy = centroid[1] - centroid[3]
+    out[base] = np.sqrt(dx * dx + dy * dy) if both else np.float32(0.0)
+
+
+__all__ = ["CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "script_env_actions"]
