@@ -9,16 +9,20 @@ chunk (``chunk``, per step), the host-side episode assembly and buffer insertion
 
     python bench/train_step.py [--scenario m5v5] [--preset quick] [--env combat] [--repeats 3]
     python bench/train_step.py --preset quick-paper        # the paper's one-step Alg. 1
+    python bench/train_step.py --compare --repeats 5       # the whole step, jax vs native engine
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import statistics
 import time
 
 import jax
 import jax.numpy as jnp
+import numba
 import optax
 
 from hybridmarl.algos.hybrid.brd import best_response_dynamics
@@ -43,6 +47,38 @@ def timed(fn, *args, repeats=3):
     return best, compile_s
 
 
+def compare_engines(task, cfg, jax_learner, pool, actor, cv, repeats):
+    """Per training step (a chunk / chunk_steps) on both engines, interleaved repeat by repeat
+    so that both see the same machine load; the native step's split from its learner's timing."""
+    native = build_learner(task, cfg.replace(engine="native"), cfg.demonstrator_name())
+    learners = {"jax": jax_learner, "native": native}
+    compile_s, per_step = {}, {name: [] for name in learners}
+    for name, lr in learners.items():
+        t0 = time.perf_counter()
+        jax.block_until_ready(lr.train_chunk(pool, actor, cv, None))
+        compile_s[name] = round(time.perf_counter() - t0, 1)
+    native.timing.clear()
+    for _ in range(repeats):
+        for name, lr in learners.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(lr.train_chunk(pool, actor, cv, None))
+            per_step[name].append((time.perf_counter() - t0) / cfg.chunk_steps)
+    split = {k: round(v / native.timing["steps"], 5) for k, v in native.timing.items() if k != "steps"}
+    summary = {name: {"min": round(min(v), 5), "median": round(statistics.median(v), 5)} for name, v in per_step.items()}
+    return {
+        "seconds_per_step": summary,
+        "speedup_native_over_jax": {
+            "min": round(summary["jax"]["min"] / summary["native"]["min"], 2),
+            "median": round(summary["jax"]["median"] / summary["native"]["median"], 2),
+        },
+        "native_split_seconds_per_step": split,
+        "first_call_s (compile + one chunk)": compile_s,
+        "repeats": repeats,
+        "load": os.getloadavg(),
+        "numba_threads": numba.get_num_threads(),
+    }
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--env", default="combat")
@@ -51,6 +87,7 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--work-batch", type=int, help="override the preset's brd_work_batch (0: the dense schedule)")
     p.add_argument("--lookahead-policy", choices=["start", "actor", "demonstrator"], help="override the preset's lookahead_policy")
+    p.add_argument("--compare", action="store_true", help="also time the whole training step on both engines, interleaved (engine=jax vs engine=native)")
     args = p.parse_args()
     cfg = PRESETS[args.preset](args.env).replace(scenario=args.scenario)
     if args.work_batch is not None:
@@ -58,7 +95,7 @@ def main() -> None:
     if args.lookahead_policy:
         cfg = cfg.replace(lookahead_policy=args.lookahead_policy)
     task = make_task(cfg.task_spec())
-    learner = build_learner(task, cfg, cfg.demonstrator_name())
+    learner = build_learner(task, cfg.replace(engine="jax"), cfg.demonstrator_name())
     b = cfg.num_envs
     actor = nets.init_net(learner.actor_mod, jax.random.key(0), task.obs_dim, learner.actor_tx)
     critic = nets.init_net(learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx)
@@ -128,6 +165,8 @@ def main() -> None:
         "env_steps_per_s": round(b / per_step, 1),
         "compile_s": {"brd": round(c_brd, 1), "chunk": round(c_chunk, 1)},
     }
+    if args.compare:
+        doc["engines"] = compare_engines(task, cfg, learner, pool, actor, cv, args.repeats)
     print(json.dumps(doc, indent=2))
 
 

@@ -129,7 +129,7 @@ def test_critic_features_and_mlp(midgame):
     stats = jax.tree.map(lambda x: x + 0.3 * jax.random.uniform(jax.random.key(4), x.shape), net.batch_stats)
     variables = {"params": net.params, "batch_stats": stats}
     want = np.asarray(nets.apply_eval(module, variables, jnp.asarray(ref)))
-    np.testing.assert_allclose(BN.NumpyMLP(jax.device_get(variables))(ref), want, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(BN.NativeMLP(jax.device_get(variables))(ref), want, rtol=1e-4, atol=1e-5)
 
 
 def test_native_chunk_is_deterministic():

@@ -5,8 +5,8 @@ simulation of candidate joint actions dominates it, so for combat this module ru
 Alg. 1 for all games of one env step in one host call: the sweeps and their bookkeeping in
 NumPy, the simulation of every (game, candidate) pair a visit needs in one parallel Numba
 kernel (the env step of ``hybridmarl.envs.combat.native``, then the scripted continuation of a
-look-ahead), and the critic's forward pass as a NumPy MLP with the current weights
-(:class:`NumpyMLP`, batch norm folded into the dense layers).
+look-ahead), and the critic's forward pass as a Numba MLP with the current weights
+(:class:`NativeMLP`, batch norm folded into the dense layers).
 
 The schedule, tie rules, early exit and outputs are those of ``brd`` (see its docstring): the
 same games visited in the same order, the same strict-improvement rule, the same Ã. The
@@ -115,9 +115,29 @@ def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkab
                                 num_agents, num_enemies, values, feats_out[i])
 
 
-class NumpyMLP:
-    """``training.networks.MLP`` in eval mode, in NumPy float32: each hidden layer is
-    Dense → BatchNorm (running statistics) → ReLU, folded into one affine map."""
+@njit(cache=True, fastmath=True)
+def _affine(x, w, b, relu, out):
+    """``out = x @ w + b`` (then ReLU): rows one at a time, the inner loop over contiguous
+    outputs so that it vectorises; one thread, no BLAS thread pool beside XLA's and Numba's."""
+    m, k = x.shape
+    n = w.shape[1]
+    for i in range(m):
+        for j in range(n):
+            out[i, j] = b[j]
+        for kk in range(k):
+            xv = x[i, kk]
+            for j in range(n):
+                out[i, j] += xv * w[kk, j]
+        if relu:
+            for j in range(n):
+                if out[i, j] < 0:
+                    out[i, j] = 0
+
+
+class NativeMLP:
+    """``training.networks.MLP`` in eval mode on the host, float32: each hidden layer is
+    Dense → BatchNorm (running statistics) → ReLU, folded into one affine map. Equal to the
+    Flax module up to float rounding."""
 
     def __init__(self, variables: dict[str, Any], epsilon: float = 1e-5) -> None:
         params, stats = variables["params"], variables.get("batch_stats", {})
@@ -132,14 +152,14 @@ class NumpyMLP:
                 shift = np.asarray(params[bn]["bias"], np.float32) - np.asarray(stats[bn]["mean"], np.float32) * mul
                 self.layers.append((np.ascontiguousarray(w * mul[None, :]), (b * mul + shift).astype(np.float32), True))
             else:
-                self.layers.append((w, b, False))
+                self.layers.append((np.ascontiguousarray(w), b, False))
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        h = np.asarray(x, np.float32)
+        h = np.ascontiguousarray(x, np.float32)
         for w, b, relu in self.layers:
-            h = h @ w + b
-            if relu:
-                np.maximum(h, 0.0, out=h)
+            out = np.empty((h.shape[0], w.shape[1]), np.float32)
+            _affine(h, w, b, relu, out)
+            h = out
         return h
 
 
@@ -328,4 +348,4 @@ def bucket(count: int, total: int, smallest: int = 64) -> int:
     return min(size, total)
 
 
-__all__ = ["NativeBRD", "NativeBRDResult", "NumpyMLP", "best_response_dynamics", "bucket", "native_support", "simulate_candidates"]
+__all__ = ["NativeBRD", "NativeBRDResult", "NativeMLP", "best_response_dynamics", "bucket", "native_support", "simulate_candidates"]

@@ -268,9 +268,9 @@ class Learner:
 
     def _train_chunk_native(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any):
         """'train_chunk' on the native engine: the same steps, one host call of Alg. 1 each."""
-        from hybridmarl.algos.hybrid.brd_native import NumpyMLP, bucket
+        from hybridmarl.algos.hybrid.brd_native import NativeMLP, bucket
 
-        value = None if self.native_brd.steps >= TO_THE_END else NumpyMLP(jax.device_get(critic_vars))
+        value = None if self.native_brd.steps >= TO_THE_END else NativeMLP(jax.device_get(critic_vars))
         outs = []
         timing = self.timing
         for _ in range(self._chunk_steps):

@@ -17,6 +17,9 @@ import os
 
 from numba import config as _numba_config
 
+# libgomp's worker threads otherwise spin for a while after each parallel region, taking the
+# cores from the XLA calls that follow it in the same process (training alternates the two).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 if "NUMBA_THREADING_LAYER" not in os.environ:
     _numba_config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]  # type: ignore[attr-defined]
 
