@@ -103,7 +103,7 @@ def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkab
                 r, ended = env_step(0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp,
                                     s_tmove, s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts,
                                     num_agents, num_actions, enemy, overkill_pass, stalemate_limit,
-                                    max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of)
+                                    max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
                 ret = ret + disc * r
                 disc = disc * gamma
                 k += 1

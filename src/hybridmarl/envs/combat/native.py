@@ -123,18 +123,21 @@ def _hp_diff(hp):
 @njit(cache=True)
 def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
              prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
-             stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot):
+             stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared=False):
     """``Combat.step`` of game ``g`` (unit-field views ``[2, U]``) with env ``actions``
     ``[num_agents]``, in place. Returns ``(reward, done)``; a finished game is left as it is.
 
     An illegal action becomes the unit's first legal engine action. The decision turn plays our
     engine actions and the enemy script's, then enemy-only turns follow until one of our units
-    acts or the game is over. ``last_actions`` is not kept (no caller here needs it)."""
+    acts or the game is over. ``last_actions`` is not kept (no caller here needs it).
+    ``prepared``: ``ws`` and the ranks already hold this state's turn context (the caller ran
+    :func:`script_env_actions` on it just before)."""
     if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
         return np.float32(0.0), True
     diff_old = _hp_diff(hp)
     n = hp.shape[1]
-    prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+    if not prepared:
+        prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
     n_alive = enemy_ranks(hp, rank_slot, rank_of_slot)
     chosen = ws[4]
     for u in range(n):
