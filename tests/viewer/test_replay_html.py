@@ -90,7 +90,7 @@ def test_combat_page_matches_the_engine_trace(tmp_path, capsys, browser_page):
     # The engine's own turn-by-turn record of the same start state (the replay's keys).
     env = Combat("m5v5", enemy="attack-weakest")
     _, k0 = jax.random.split(jax.random.key(0))
-    _, state = env.reset(k0)
+    _, state = jax.jit(env.reset)(k0)
     game = jax.device_get(state.game)
     n_units = int((np.asarray(game.uid) < 4096).sum())
     from hybridmarl.engine.state import UnitSpec

@@ -299,11 +299,15 @@ def load_manifest(folder: str | Path) -> dict[str, Any]:
 
 def tier_table(manifest: dict[str, Any]) -> str:
     """A Markdown table of the datasets, strongest first."""
-    rows = ["| rank | dataset | demonstrator | W [95 % CI] | R [95 % CI] | observations | episodes |", "|---|---|---|---|---|---|---|"]
+    rows = [
+        "| rank | dataset | demonstrator | W [95 % CI] | R [95 % CI] | W of its episodes | observations | episodes |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for e in manifest["datasets"]:
         rows.append(
             f"| {e['rank']} | `{e['file']}` | `{e['demonstrator']}` | {e['W']:.2f} [{e['W_ci95'][0]:.2f}, {e['W_ci95'][1]:.2f}] "
-            f"| {e['R']:+.3f} [{e['R_ci95'][0]:+.3f}, {e['R_ci95'][1]:+.3f}] | {e['num_observations']} | {e['episodes']} |"
+            f"| {e['R']:+.3f} [{e['R_ci95'][0]:+.3f}, {e['R_ci95'][1]:+.3f}] | {e['dataset_W']:.2f} "
+            f"| {e['num_observations']} | {e['episodes']} |"
         )
     return "\n".join(rows)
 
