@@ -229,7 +229,14 @@ def test_html_page_embeds_policy_probabilities(tmp_path):
         legal = env.get_avail_actions(state).astype(jnp.float32)
         return legal / legal.sum(axis=-1, keepdims=True)
 
-    timeline, last = record_combat_timeline(env, env.script_policy("attack-closest"), seed=1, max_steps=2, probs_fn=uniform)
+    def alg1(key, state):  # a stand-in for Alg. 1: moves agent 0 from its first legal action to its last
+        legal = np.asarray(env.get_avail_actions(state))
+        start = legal.argmax(axis=1)
+        actions = start.copy()
+        actions[0] = legal.shape[1] - 1 - legal[0, ::-1].argmax()
+        return {"actions": actions, "start": start, "q_start": np.float32(0.25), "q_final": np.float32(0.5)}
+
+    timeline, last = record_combat_timeline(env, env.script_policy("attack-closest"), seed=1, max_steps=2, probs_fn=uniform, alg1_fn=alg1)
     decisions = [f for f in timeline["frames"] if f["decision"]]
     assert len(decisions) == last["steps"] == 2
     first = decisions[0]["policy"]["agents"]
@@ -238,6 +245,9 @@ def test_html_page_embeds_policy_probabilities(tmp_path):
         probs = [p for _, p in agent["probs"]]
         assert probs == sorted(probs, reverse=True) and all(abs(p - probs[0]) < 1e-6 for p in probs)
         assert re.fullmatch(r"noop|move (left|right|down|up)|attack \d+", agent["chosen"])
+    summary = decisions[0]["policy"]["alg1"]
+    assert summary == {"q_start": 0.25, "q_final": 0.5, "changed": int(first[0]["alg1"] != first[0]["alg1_start"])}
+    assert first[0]["alg1"] != first[0]["alg1_start"] and all(a["alg1"] == a["alg1_start"] for a in first[1:])
     path = write_page(tmp_path / "p.html", timeline, title="m3v3 </script><b>", fps=4)
     doc = _embedded(Path(path))
     assert doc["timeline"]["frames"][1]["policy"] == decisions[0]["policy"]

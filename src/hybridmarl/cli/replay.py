@@ -23,6 +23,7 @@ The camera is fixed for the whole episode (a window around every unit position o
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -305,11 +306,18 @@ def _validate(cfg: ReplayConfig) -> str:
     return env
 
 
-def _trained_policy(
-    cfg: ReplayConfig,
-) -> tuple[ReplayConfig, Callable[..., jax.Array], Callable[[Any], jax.Array]]:
-    """The run's env/scenario in ``cfg``, its actor as an env policy (legal argmax) and the
-    actor's action probabilities ``state -> [n, A]`` (0 on illegal actions).
+@dataclass(frozen=True)
+class _Trained:
+    """A run directory's policy, as the replay plays and shows it."""
+
+    cfg: ReplayConfig  # the replay settings with the run's env, scenario and setting
+    act: Callable[[jax.Array, Any], jax.Array]  # the actor's legal argmax, an env policy
+    probs: Callable[[Any], jax.Array]  # state -> [n, A] the actor's action probabilities
+    alg1: Callable[[], Callable[[jax.Array, Any], dict[str, jax.Array]] | None]  # builds _alg1_choice
+
+
+def _trained_policy(cfg: ReplayConfig) -> _Trained:
+    """The policy of ``cfg.run_dir`` (its newest checkpoint) and, for a hybrid run, Alg. 1.
     Raises ValueError (one line) for a missing or broken run directory."""
     import dataclasses
 
@@ -330,14 +338,79 @@ def _trained_policy(
         logits = nets.apply_eval(module, variables, task.observe(state))
         return jnp.exp(nets.masked_log_softmax(logits, task.avail(state)))
 
+    run_dir = Path(str(cfg.run_dir))
+
+    def alg1() -> Callable[[jax.Array, Any], dict[str, jax.Array]] | None:
+        return _alg1_choice(run_dir, bundle.config, task)
+
     if spec.env == "combat":
         cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None, setting=spec.setting)
-        return cfg, act, probs
-    cfg = dataclasses.replace(
-        cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None,
-        setting=spec.setting,
-    )
-    return cfg, act, probs
+    else:
+        cfg = dataclasses.replace(
+            cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None,
+            setting=spec.setting,
+        )
+    return _Trained(cfg, act, probs, alg1)
+
+
+def _alg1_choice(run_dir: Path, doc: dict[str, Any], task: Any) -> Callable[[jax.Array, Any], dict[str, jax.Array]] | None:
+    """For a hybrid run: ``(key, state) -> {"actions" [n], "start" [n], "q_start", "q_final"}``,
+    Alg. 1's joint action Ã at ``state`` as the run's training computes it (its options: start
+    policy, iterations, look-ahead; the newest checkpoint's actor, critic and clone), with the
+    joint action it started from and Q(s, ·) of both. None for runs of other algorithms."""
+    if doc.get("algo") != "hybrid":
+        return None
+    from hybridmarl.algos.hybrid.brd import best_response_dynamics
+    from hybridmarl.algos.hybrid.config import HybridConfig
+    from hybridmarl.algos.hybrid.learner import build_learner, continuation_policy, simulated_steps
+    from hybridmarl.io import unflatten_named
+    from hybridmarl.training import networks as nets
+    from hybridmarl.training.checkpoint import find_checkpoint, load_checkpoint, subtree
+    from hybridmarl.training.config import config_from_dict
+
+    hcfg = config_from_dict(HybridConfig, doc.get("config", {}))
+    arrays, _ = load_checkpoint(find_checkpoint(run_dir))
+    demo_script = None if hcfg.demonstrator_is_dataset() else hcfg.demonstrator_name()
+    learner = build_learner(task, hcfg, demo_script)
+
+    def net(prefix: str, module: nets.MLP, in_dim: int) -> dict[str, Any] | None:
+        if not any(k.startswith(prefix + ".") for k in arrays):
+            return None
+        template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, in_dim)), train=False))
+        return {
+            "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),
+            "batch_stats": unflatten_named(template["batch_stats"], subtree(arrays, f"{prefix}.batch_stats")),
+        }
+
+    actor = net("actor", learner.actor_mod, task.obs_dim)
+    critic = net("critic", learner.critic_mod, task.critic_dim)
+    clone = net("clone", learner.actor_mod, task.obs_dim)
+    if actor is None or critic is None:
+        raise ValueError(f"{run_dir}: the newest checkpoint lacks the actor or the critic")
+    demo = learner.demo_script_fn
+    if hcfg.brd_start == "demonstrator" and demo is None and clone is None:
+        raise ValueError(f"{run_dir}: Alg. 1 starts from the demonstrator's clone, which the checkpoint lacks")
+
+    def choose(actor: Any, critic: Any, clone: Any, key: jax.Array, state: Any) -> dict[str, jax.Array]:
+        q_fn = learner.brd_q_fn(
+            actor, critic, clone, gamma=hcfg.gamma, lookahead=simulated_steps(hcfg), continuation=continuation_policy(hcfg)
+        )
+        k_demo, k_sim = jax.random.split(key)
+        obs, legal = task.observe(state)[None], task.avail(state)[None]
+        if hcfg.brd_start == "actor":
+            start = nets.actor_actions(learner.actor_mod, actor, obs, legal)
+        elif demo is not None:
+            start = demo(k_demo, state)[None].astype(jnp.int32)
+        else:
+            start = nets.actor_actions(learner.actor_mod, clone, obs, legal)
+        states = jax.tree.map(lambda x: x[None], state)
+        res = best_response_dynamics(
+            q_fn, k_sim[None], states, start, legal, hcfg.brd_iterations, work_batch=hcfg.brd_work_batch
+        )
+        return {"actions": res.actions[0], "start": start[0], "q_start": res.q_init[0], "q_final": res.q_final[0]}
+
+    jitted = jax.jit(choose)
+    return lambda key, state: jitted(actor, critic, clone, key, state)
 
 
 def run_replay(cfg: ReplayConfig) -> int:
@@ -353,7 +426,7 @@ def run_replay(cfg: ReplayConfig) -> int:
     try:
         if cfg.run_dir is not None:
             trained = _trained_policy(cfg)
-            cfg = trained[0]
+            cfg = trained.cfg
         env = _validate(cfg)
     except UserError:
         raise
@@ -369,19 +442,19 @@ def run_replay(cfg: ReplayConfig) -> int:
     return 0
 
 
-def _write_video(cfg: ReplayConfig, env: str, trained: Any) -> dict[str, Any]:
+def _write_video(cfg: ReplayConfig, env: str, trained: _Trained | None) -> dict[str, Any]:
     from hybridmarl.cli.extras import optional_extras
 
     with optional_extras():
         from hybridmarl.envs.video import write_video
 
         if env == "combat":
-            ours: Any = trained[1] if trained else (cfg.ours or "attack-closest")
+            ours: Any = trained.act if trained else (cfg.ours or "attack-closest")
             frames, summary = record_combat_episode(
                 cfg.scenario, ours, cfg.enemy, cfg.seed, cfg.max_steps, setting=cfg.setting
             )
         else:
-            ours = trained[1] if trained else (cfg.ours or "yield-before-junction")
+            ours = trained.act if trained else (cfg.ours or "yield-before-junction")
             p_arrive = get_setting(cfg.setting).p_arrive if cfg.p_arrive is None else cfg.p_arrive
             frames, summary = record_tj_episode(ours, p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
         summary["setting"] = cfg.setting
@@ -392,19 +465,25 @@ def _write_video(cfg: ReplayConfig, env: str, trained: Any) -> dict[str, Any]:
     return {**summary, "out": path, "fps": cfg.fps}
 
 
-def _write_html(cfg: ReplayConfig, env: str, trained: Any) -> dict[str, Any]:
+def _write_html(cfg: ReplayConfig, env: str, trained: _Trained | None) -> dict[str, Any]:
     """Record the episode turn by turn (:mod:`hybridmarl.viewer`) and write the page."""
     from hybridmarl.viewer import record_combat_timeline, record_tj_timeline, write_page
 
-    probs = trained[2] if trained else None
+    probs = trained.probs if trained else None
+    alg1 = None
+    if trained:
+        try:
+            alg1 = trained.alg1()
+        except (ValueError, KeyError, TypeError) as e:  # an older or foreign run's config or checkpoint
+            print(f"hybridmarl: warning: Alg. 1's joint action is not shown: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
     who = f"policy {cfg.run_dir}" if trained else None
     if env == "combat":
         from hybridmarl.envs.combat import Combat
 
         combat = Combat(_resolve_scenario(cfg.scenario, cfg.setting), enemy=cfg.enemy, setting=cfg.setting)
         ours_name = cfg.ours or "attack-closest"
-        policy = trained[1] if trained else combat.script_policy(ours_name)
-        timeline, last = record_combat_timeline(combat, policy, cfg.seed, cfg.max_steps, probs_fn=probs)
+        policy = trained.act if trained else combat.script_policy(ours_name)
+        timeline, last = record_combat_timeline(combat, policy, cfg.seed, cfg.max_steps, probs_fn=probs, alg1_fn=alg1)
         frames = timeline["frames"]
         end = frames[-1]
         result = "unfinished"
@@ -437,8 +516,8 @@ def _write_html(cfg: ReplayConfig, env: str, trained: Any) -> dict[str, Any]:
         p_arrive = get_setting(cfg.setting).p_arrive if cfg.p_arrive is None else cfg.p_arrive
         params = TrafficJunction().default_params.replace(p_arrive=float(p_arrive), time_penalty=bool(cfg.time_penalty))
         ours_name = cfg.ours or "yield-before-junction"
-        policy = trained[1] if trained else _tj_demonstrator(ours_name)
-        timeline, last = record_tj_timeline(policy, params, cfg.seed, cfg.max_steps, probs_fn=probs)
+        policy = trained.act if trained else _tj_demonstrator(ours_name)
+        timeline, last = record_tj_timeline(policy, params, cfg.seed, cfg.max_steps, probs_fn=probs, alg1_fn=alg1)
         frames = timeline["frames"]
         who = who or ours_name
         collisions = sum(f["collisions"] for f in frames)

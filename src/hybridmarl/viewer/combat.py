@@ -38,6 +38,24 @@ TOP_ACTIONS = 3
 
 ProbsFn = Callable[[Any], jax.Array]
 """``(CombatState) -> float32 [n0, A]``: the actor's action probabilities at a decision point."""
+Alg1Fn = Callable[[jax.Array, Any], dict[str, jax.Array]]
+"""``(key, state) -> {"actions" [n0], "start" [n0], "q_start", "q_final"}``: Alg. 1's joint
+action Ã at a decision point, the joint action it started from and Q(s, ·) of both."""
+
+
+def alg1_entry(choice: dict[str, Any], labels: list[list[str]], agents: list[int]) -> dict[str, Any]:
+    """The JSON of one Alg. 1 result for the listed agents: their actions in Ã (``actions``) and
+    in the start joint action (``start``), in the order given, Q of both joint actions, and how
+    many agents Alg. 1 moved away from the start."""
+    actions, start = np.asarray(choice["actions"]), np.asarray(choice["start"])
+    q0, q1 = float(choice["q_start"]), float(choice["q_final"])
+    return {
+        "actions": [labels[i][int(actions[i])] for i in agents],
+        "start": [labels[i][int(start[i])] for i in agents],
+        "q_start": round(q0, 6) if np.isfinite(q0) else None,
+        "q_final": round(q1, 6) if np.isfinite(q1) else None,
+        "changed": int((actions != start).sum()),
+    }
 
 
 class _Recorder:
@@ -154,13 +172,15 @@ def record_combat_timeline(
     max_steps: int = 500,
     *,
     probs_fn: ProbsFn | None = None,
+    alg1_fn: Alg1Fn | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Play one episode of ``env`` (a ``Combat``) with the env policy ``policy`` and record every
     engine turn.
 
     The keys are those of ``hybridmarl.cli.replay.record_combat_episode`` (the GIF replay), so
     the same seed plays the same episode. ``probs_fn``, if given, adds the actor's action
-    probabilities (top ``TOP_ACTIONS``) of every acting allied unit at each decision point.
+    probabilities (top ``TOP_ACTIONS``) of every acting allied unit at each decision point;
+    ``alg1_fn`` Alg. 1's joint action there (called with the step's simulator key).
 
     Returns ``(timeline, last)``: the viewer's JSON-able document (``kind`` ``combat``) and a
     dict with the final ``CombatState`` (``state``), the summed ``return`` (``Combat.step``'s
@@ -220,14 +240,19 @@ def record_combat_timeline(
         acting0 = np.asarray(rec.facts(state.game)[2])[0]
         p = np.asarray(probs(state)) if probs is not None else None
         agents = []
-        for i in range(env.num_agents):
-            if not acting0[i]:
-                continue
+        acting_agents = [i for i in range(env.num_agents) if acting0[i]]
+        for i in acting_agents:
             entry: dict[str, Any] = {"unit": int(np.asarray(state.game.uid)[0, i]), "chosen": labels[i][int(actions[i])]}
             if p is not None:
                 order = np.argsort(-p[i], kind="stable")[:TOP_ACTIONS]
                 entry["probs"] = [[labels[i][a], round(float(p[i, a]), 4)] for a in order if p[i, a] > 0]
             agents.append(entry)
+
+        alg1 = None
+        if alg1_fn is not None:
+            alg1 = alg1_entry(alg1_fn(k_env, state), labels, acting_agents)
+            for entry, action, start in zip(agents, alg1.pop("actions"), alg1.pop("start"), strict=True):
+                entry["alg1"], entry["alg1_start"] = action, start
 
         eng0, bad, _ = engine_actions(state, actions)
         illegal += int(np.asarray(bad).sum())
@@ -237,6 +262,8 @@ def record_combat_timeline(
         game, first, last = play_turn(k_env, state.game, eng0, 0, steps, last)
         first["decision"] = True
         first["policy"] = {"env_actions": np.asarray(actions).tolist(), "agents": agents, "illegal": int(np.asarray(bad).sum())}
+        if alg1 is not None:
+            first["policy"]["alg1"] = alg1
         n = 1
         while bool(needs_enemy_turn(game)):
             game, _, last = play_turn(k_env, game, pass_all, n, steps, last)

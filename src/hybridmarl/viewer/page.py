@@ -12,9 +12,10 @@ The page's DOM is a small, stable contract that tests and users' scripts can rea
 - The side panel's rows ``tr.unit-row[data-unit-id]``; combat rows carry ``data-player``,
   ``data-type``, ``data-hp``, ``data-max-hp``, ``data-alive``, ``data-cooldown`` (frames until
   the unit can attack), ``data-move-cooldown``, ``data-action`` (the engine action it issued this
-  turn) and, at decision points, ``data-policy-action`` and ``data-probs`` (JSON); Traffic
-  Junction rows (one per car slot) carry ``data-active``, ``data-action`` (gas/brake) and
-  ``data-collided``.
+  turn) and, during a step, ``data-policy-action``, ``data-probs`` (JSON) and
+  ``data-alg1-action`` (Alg. 1's action for the unit, hybrid runs); Traffic Junction rows (one
+  per car slot) carry ``data-active``, ``data-action`` (gas/brake), ``data-collided`` and
+  ``data-alg1-action``.
 - The map ``svg#map``: combat units ``g.unit[data-unit-id][data-player][data-hp][data-alive]``
   and attack lines ``line.attack[data-from][data-to]``; Traffic Junction cars
   ``g.car[data-car-id][data-route][data-row][data-col][data-action]`` and collision markers

@@ -14,6 +14,8 @@ from typing import Any
 import jax
 import numpy as np
 
+from hybridmarl.viewer.combat import alg1_entry
+
 __all__ = ["record_tj_timeline"]
 
 TJ_ACTION_NAMES = ("brake", "gas")
@@ -30,12 +32,14 @@ def record_tj_timeline(
     max_steps: int = 40,
     *,
     probs_fn: Callable[[Any], jax.Array] | None = None,
+    alg1_fn: Callable[[jax.Array, Any], dict[str, jax.Array]] | None = None,
     num_agents: int = 10,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Play one episode with ``policy`` ``(key, TJState) -> int32 [N]`` under ``params``
     (``TJParams``) and record every step. The keys are those of
     ``hybridmarl.cli.replay.record_tj_episode``, so a seed plays the same episode as the GIF.
-    ``probs_fn(state) -> float32 [N, 2]`` adds each active car's brake/gas probabilities.
+    ``probs_fn(state) -> float32 [N, 2]`` adds each active car's brake/gas probabilities,
+    ``alg1_fn`` Alg. 1's joint action (:data:`hybridmarl.viewer.combat.Alg1Fn`).
 
     Returns ``(timeline, last)`` like :func:`hybridmarl.viewer.combat.record_combat_timeline`.
     """
@@ -82,6 +86,7 @@ def record_tj_timeline(
         active0 = np.asarray(state.active)
         route0, pos0 = np.asarray(state.route), np.asarray(state.pos)
         p = np.asarray(probs(state)) if probs is not None else None
+        alg1 = alg1_fn(k_env, state) if alg1_fn is not None else None
         _, new, reward, d, info = step(k_env, state, actions, params)
         collided = np.asarray(info["collided"])
         arrived = np.asarray(info["arrived"])
@@ -106,6 +111,15 @@ def record_tj_timeline(
             frame["probs"] = [
                 [round(float(p[i, 0]), 4), round(float(p[i, 1]), 4)] if active0[i] else None for i in range(num_agents)
             ]
+        if alg1 is not None:
+            cars_in_play = [i for i in range(num_agents) if active0[i]]
+            entry = alg1_entry(alg1, [list(TJ_ACTION_NAMES)] * num_agents, cars_in_play)
+            chosen, started = entry.pop("actions"), entry.pop("start")
+            entry["actions"] = [None] * num_agents
+            entry["start"] = [None] * num_agents
+            for i, a, s in zip(cars_in_play, chosen, started, strict=True):
+                entry["actions"][i], entry["start"][i] = a, s
+            frame["alg1"] = entry
         frames.append(frame)
         total += float(reward)
         done = bool(d)
