@@ -63,7 +63,7 @@ def browser_page(tmp_path_factory):
 
 
 def _embedded(path: Path) -> dict:
-    m = re.search(r'<script type="application/json" id="replay-data">(.*?)</script>', path.read_text(), re.S)
+    m = re.search(r'<script type="application/json" id="replay-data">(.*?)</script>', path.read_text(encoding="utf-8"), re.S)
     assert m, "no embedded replay data"
     return json.loads(m.group(1))
 
@@ -84,7 +84,7 @@ def test_combat_page_matches_the_engine_trace(tmp_path, capsys, browser_page):
     assert main(["replay", "--scenario", "m5v5", "--ours", "attack-closest", "--enemy", "attack-weakest", "--seed", "0", "--html", str(out)]) == 0
     summary = json.loads(capsys.readouterr().out.strip())
     assert summary["html"] == str(out) and summary["done"] and summary["engine_turns"] > TURN
-    text = out.read_text()
+    text = out.read_text(encoding="utf-8")
     assert "<script src" not in text and "http://" not in text.replace("http://www.w3.org/2000/svg", "")
 
     # The engine's own turn-by-turn record of the same start state (the replay's keys).
@@ -248,10 +248,11 @@ def test_html_page_embeds_policy_probabilities(tmp_path):
     summary = decisions[0]["policy"]["alg1"]
     assert summary == {"q_start": 0.25, "q_final": 0.5, "changed": int(first[0]["alg1"] != first[0]["alg1_start"])}
     assert first[0]["alg1"] != first[0]["alg1_start"] and all(a["alg1"] == a["alg1_start"] for a in first[1:])
-    path = write_page(tmp_path / "p.html", timeline, title="m3v3 </script><b>", fps=4)
+    path = write_page(tmp_path / "p.html", timeline, title="m3v3 \u00e9t\u00e9 </script><b>", fps=4)
     doc = _embedded(Path(path))
     assert doc["timeline"]["frames"][1]["policy"] == decisions[0]["policy"]
-    assert doc["meta"]["title"] == "m3v3 </script><b>"  # escaped inside the page, intact in the data
+    assert doc["meta"]["title"] == "m3v3 \u00e9t\u00e9 </script><b>"  # escaped inside the page, intact in the data
+    assert "<title>m3v3 \u00e9t\u00e9 &lt;/script&gt;&lt;b&gt;</title>" in Path(path).read_text(encoding="utf-8")
 
 
 def test_html_option_errors(tmp_path, capsys):

@@ -31,7 +31,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from hybridmarl.io import write_text_atomic
+from hybridmarl.io import atomic_write
 
 __all__ = ["render_page", "write_page"]
 
@@ -51,6 +51,9 @@ def render_page(timeline: dict[str, Any], *, title: str, subtitle: str = "", fps
 
 
 def write_page(path: str | Path, timeline: dict[str, Any], *, title: str, subtitle: str = "", fps: int = 8) -> str:
-    """Write the page atomically to ``path`` (parent folders created); returns the path."""
-    write_text_atomic(path, render_page(timeline, title=title, subtitle=subtitle, fps=fps))
+    """Write the page atomically to ``path`` (parent folders created), UTF-8 whatever the
+    locale; returns the path."""
+    text = render_page(timeline, title=title, subtitle=subtitle, fps=fps)
+    with atomic_write(path, "wb") as f:
+        f.write(text.encode("utf-8"))
     return str(path)
