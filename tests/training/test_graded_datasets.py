@@ -16,7 +16,7 @@ from hybridmarl.training.task import make_task
 
 
 def test_tiny_graded_set_round_trips_through_the_loader(tmp_path):
-    spec = GradedSpec(scenario="m3v3", scripts=("nokdps", "attack-closest"), noise=0.5, num_observations=96, eval_battles=0, num_envs=8, seed=3)
+    spec = GradedSpec(scenario="m3v3", scripts=("nokdps", "attack-closest"), noise=0.5, num_observations=96, eval_battles=16, num_envs=8, seed=3)
     lines: list[str] = []
     manifest = generate_graded(tmp_path, spec, log=lines.append)
     assert len(lines) == 4
@@ -33,7 +33,7 @@ def test_tiny_graded_set_round_trips_through_the_loader(tmp_path):
         ds = load_dataset(tmp_path / e["file"], expect=task)  # the ordinary loader validates it
         assert ds.size == 96 and ds.meta["demonstrator"] == e["demonstrator"]
         assert ds.meta["graded"]["rank"] == e["rank"] and ds.meta["task"]["scenario"] == "m3v3"
-        assert e["W"] == e["dataset_W"] and 0.0 <= e["W"] <= 1.0  # eval_battles=0: the file's own episodes
+        assert e["eval_battles"] == 16 and (16 * e["W"]).is_integer() and 0.0 <= e["dataset_W"] <= 1.0
         assert e["episodes"] == int(ds.arrays["episode"].max()) + 1
         # The recorded actions are the named script's (clean) or mostly its (noisy).
         states = state_at(ds, np.arange(ds.size), task)

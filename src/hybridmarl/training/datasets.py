@@ -216,47 +216,13 @@ def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise GradedError(f"{out}: exists and is not a folder")
-    entries: list[dict[str, Any]] = []
     evaluate = _evaluator(task, scripts)
     demonstrators = _demonstrators(GradedSpec(**{**spec.__dict__, "scripts": scripts}))
-    for i, (name, script, eps) in enumerate(demonstrators):
-        which = scripts.index(script)
-        t0 = time.perf_counter()
-        arrays, episodes = _record(task, spec, scripts, which, eps, spec.seed + 1 + i)
-        own = summarize(task, episodes)
-        if spec.eval_battles > 0:
-            variables = (jnp.int32(which), jnp.float32(eps))
-            result = summarize(task, run_episodes(task, evaluate, variables, jax.random.key(spec.seed), spec.eval_battles))
-        else:
-            result = own
-        entries.append(
-            {
-                "name": name,
-                "file": f"{name}.safetensors",
-                "demonstrator": script if eps == 0 else f"{script}:{eps:g}",
-                "script": script,
-                "noise": eps,
-                "W": result["W"],
-                "W_ci95": result["W_ci95"],
-                "R": result["R"],
-                "R_ci95": result["R_ci95"],
-                "draws": result["draws"],
-                "eval_battles": spec.eval_battles,
-                "dataset_W": own["W"],
-                "dataset_R": own["R"],
-                "num_observations": int(arrays["actions"].shape[0]),
-                "episodes": int(arrays["episode"].max()) + 1,
-                "seed": spec.seed + 1 + i,
-                "_arrays": arrays,
-            }
-        )
-        log(f"{name}: W {result['W']:.2f} [{result['W_ci95'][0]:.2f}, {result['W_ci95'][1]:.2f}]  R {result['R']:+.3f}  "
-            f"({entries[-1]['episodes']} episodes, {time.perf_counter() - t0:.0f} s)")
-    # Rank by W (then R): 1 is the strongest demonstrator.
-    entries.sort(key=lambda e: (-e["W"], -e["R"], e["name"]))
-    for rank, e in enumerate(entries, start=1):
-        e["rank"] = rank
-        arrays = e.pop("_arrays")
+
+    def rank_key(e: dict[str, Any]) -> tuple[float, float, str]:
+        return (-e["W"], -e["R"], e["name"])  # rank 1: the highest W, then R
+
+    def save(e: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         meta = {
             "format": FORMAT,
             "version": VERSION,
@@ -271,6 +237,57 @@ def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log
             "graded": {k: e[k] for k in ("name", "script", "noise", "rank", "W", "W_ci95", "R", "R_ci95", "eval_battles")},
         }
         save_dataset(Dataset(arrays=arrays, meta=meta), out / e["file"])
+
+    # W and R on the evaluation battles first: with the ranks known, each dataset is written as
+    # soon as it is recorded, so only one is held in memory.
+    evaluated: dict[str, dict[str, Any]] = {}
+    if spec.eval_battles > 0:
+        for name, script, eps in demonstrators:
+            variables = (jnp.int32(scripts.index(script)), jnp.float32(eps))
+            episodes = run_episodes(task, evaluate, variables, jax.random.key(spec.seed), spec.eval_battles)
+            evaluated[name] = {"name": name, **summarize(task, episodes)}
+        order = sorted(evaluated.values(), key=rank_key)
+        for rank, r in enumerate(order, start=1):
+            r["rank"] = rank
+
+    entries: list[dict[str, Any]] = []
+    pending: dict[str, dict[str, np.ndarray]] = {}  # ranked by their own episodes: saved at the end
+    for i, (name, script, eps) in enumerate(demonstrators):
+        t0 = time.perf_counter()
+        arrays, episodes = _record(task, spec, scripts, scripts.index(script), eps, spec.seed + 1 + i)
+        own = summarize(task, episodes)
+        result = evaluated.get(name, own)
+        e = {
+            "name": name,
+            "file": f"{name}.safetensors",
+            "demonstrator": script if eps == 0 else f"{script}:{eps:g}",
+            "script": script,
+            "noise": eps,
+            "rank": result.get("rank"),
+            "W": result["W"],
+            "W_ci95": result["W_ci95"],
+            "R": result["R"],
+            "R_ci95": result["R_ci95"],
+            "draws": result["draws"],
+            "eval_battles": spec.eval_battles,
+            "dataset_W": own["W"],
+            "dataset_R": own["R"],
+            "num_observations": int(arrays["actions"].shape[0]),
+            "episodes": int(arrays["episode"].max()) + 1,
+            "seed": spec.seed + 1 + i,
+        }
+        entries.append(e)
+        if e["rank"] is not None:
+            save(e, arrays)
+        else:
+            pending[name] = arrays
+        log(f"{name}: W {e['W']:.2f} [{e['W_ci95'][0]:.2f}, {e['W_ci95'][1]:.2f}]  R {e['R']:+.3f}  "
+            f"({e['episodes']} episodes, {time.perf_counter() - t0:.0f} s)")
+    entries.sort(key=rank_key)
+    for rank, e in enumerate(entries, start=1):
+        if e["name"] in pending:
+            e["rank"] = rank
+            save(e, pending.pop(e["name"]))
     manifest = {
         "format": MANIFEST_FORMAT,
         "version": 1,
