@@ -160,7 +160,7 @@ def _action_labels(codes: np.ndarray, uid: np.ndarray) -> list[list[str]]:
         row: list[str] = list(COMBAT_ACTION_NAMES)
         for a in range(len(COMBAT_ACTION_NAMES), na):
             j = int(codes[a, i]) - R.ATTACK_BASE
-            row.append(f"attack {int(uid[1, j])}" if 0 <= j < uid.shape[1] and uid[1, j] < PAD_ID_BASE else f"attack[{a - 5}]")
+            row.append(f"attack {int(uid[1, j])}" if 0 <= j < uid.shape[1] and uid[1, j] < PAD_ID_BASE else f"attack[{a - len(COMBAT_ACTION_NAMES)}]")
         labels.append(row)
     return labels
 
