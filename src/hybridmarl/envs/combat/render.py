@@ -20,7 +20,7 @@ from hybridmarl.engine.state import (
 )
 from hybridmarl.envs.combat.state import CombatState
 
-__all__ = ["camera_window", "render", "render_facts"]
+__all__ = ["DRAW_RADIUS", "camera_window", "render", "render_facts"]
 
 
 def camera_window(
@@ -57,8 +57,8 @@ def camera_window(
     return round(x0), round(y0), round(w), round(h)
 
 
-# Approximate Brood War unit half-sizes in px, for drawing only.
-_DRAW_RADIUS = {
+#: Approximate Brood War unit half-sizes in px, for drawing only (the GIF and HTML replays).
+DRAW_RADIUS = {
     "Terran_Marine": 8,
     "Terran_Firebat": 9,
     "Terran_Vulture": 12,
@@ -140,7 +140,7 @@ def render(
     for p in (0, 1):
         for s in np.flatnonzero(real[p]):
             x, y = to_px(cx[p, s], cy[p, s])
-            r = max(3.0, _DRAW_RADIUS.get(UT.TYPE_NAMES[utype[p, s]], 8) * scale)
+            r = max(3.0, DRAW_RADIUS.get(UT.TYPE_NAMES[utype[p, s]], 8) * scale)
             if hp[p, s] <= 0:
                 c = (95, 95, 100)
                 k = r * 0.6
