@@ -54,26 +54,29 @@ def train_command(args: list[str]) -> int:
 
     default_preset: str = getattr(algos, "DEFAULT_PRESET", "quick")
     pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--algo", default="hybrid")
+    pre.add_argument("--algo", default=None)
     pre.add_argument("--preset", default=None)
     pre.add_argument("--env", default="combat")
     pre.add_argument("--run-dir", "--run_dir", dest="run_dir", default=None)
     pre.add_argument("--resume", action="store_true")
     known, rest = pre.parse_known_args(args)
-    mod = algos.algo_module(known.algo)
+    # --resume with a run directory and no preset: start from the run's own (validated) config.
+    doc = None
+    if known.resume and known.preset is None and known.run_dir and (Path(known.run_dir) / "config.json").exists():
+        from hybridmarl.training.rundir import read_run_config
+
+        doc = read_run_config(known.run_dir)
+    mod = algos.algo_module(known.algo or (doc["algo"] if doc else "hybrid"))
     env = canonical_env(known.env)
-    # --resume with a run directory and no preset: start from the run's own config.
-    saved = Path(known.run_dir) / "config.json" if known.run_dir else None
-    if known.resume and known.preset is None and saved is not None and saved.is_file():
-        doc = json.loads(saved.read_text())
-        if doc.get("algo") != mod.ALGO:
-            raise UserError(f"{known.run_dir} is a {doc.get('algo')!r} run, not {mod.ALGO!r}")
+    if doc is not None:
+        if doc["algo"] != mod.ALGO:
+            raise UserError(f"{known.run_dir} is a {doc['algo']!r} run, not {mod.ALGO!r}")
         default = config_from_dict(type(mod.PRESETS[default_preset](env)), doc["config"])
         env = default.env
     else:
         preset = known.preset or default_preset
         if preset not in mod.PRESETS:
-            raise UserError(f"unknown preset {preset!r} for --algo {known.algo} (known: {', '.join(mod.PRESETS)})")
+            raise UserError(f"unknown preset {preset!r} for --algo {known.algo or mod.ALGO} (known: {', '.join(mod.PRESETS)})")
         default = mod.PRESETS[preset](env)
     cls = type(default)
     extra = ["--env", env]

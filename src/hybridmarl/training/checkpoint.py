@@ -143,21 +143,26 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
 
 
 def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """``(arrays, meta)`` of one checkpoint directory."""
+    """``(arrays, meta)`` of one checkpoint directory; :class:`CheckpointError` (one line naming
+    the file) for a missing, unreadable or malformed file."""
+    from hybridmarl.io import check_user_file, read_user_json
+
     path = Path(path)
+    meta = read_user_json(path / "meta.json", "checkpoint metadata", CheckpointError)
+    arrays_path = check_user_file(path / "arrays.safetensors", "checkpoint arrays", CheckpointError)
     try:
-        with open(path / "meta.json") as f:
-            meta = json.load(f)
-        arrays = load_file(str(path / "arrays.safetensors"))
-    except FileNotFoundError as e:
-        raise CheckpointError(f"checkpoint {path}: missing {Path(e.filename).name}") from None
-    except (json.JSONDecodeError, OSError, ValueError) as e:
-        raise CheckpointError(f"checkpoint {path}: unreadable ({e})") from None
+        arrays = load_file(str(arrays_path))
+    except Exception as e:  # safetensors raises its own error type for a malformed file
+        raise CheckpointError(f"checkpoint arrays {str(arrays_path)!r}: unreadable ({_one_line(e)})") from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise CheckpointError(
             f"checkpoint {path}: format version {meta.get('format_version')!r}, expected {FORMAT_VERSION}"
         )
     return arrays, meta
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())[:200] or type(e).__name__
 
 
 def subtree(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:

@@ -301,15 +301,15 @@ def _all_finite(tree: Any) -> jax.Array:
 
 
 def check_finite(what: str, value: Any, where: str) -> None:
-    """Raise :class:`TrainingDiverged` if ``value`` (a number or a pytree of arrays) has NaN/inf."""
+    """Raise :class:`TrainingDiverged` if ``value`` (a number or a pytree of arrays) has NaN/inf
+    (``training.run.Run`` adds to the message what checkpoint is left to resume from)."""
     if isinstance(value, int | float | np.floating | np.integer):
         ok = math.isfinite(float(value))
     else:
         ok = bool(_all_finite(value))
     if not ok:
         raise TrainingDiverged(
-            f"{what} became NaN/inf at {where}; lower the learning rate or check the inputs "
-            "(the last checkpoint is still valid: fix the cause and --resume)"
+            f"{what} became NaN/inf at {where}; lower the learning rate or check the inputs"
         )
 
 
