@@ -22,8 +22,6 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from hybridmarl.errors import UserError
@@ -92,6 +90,20 @@ def check_user_file(path: str | Path, what: str, error: type[UserError] = UserEr
     return p
 
 
+def check_output_path(path: str | Path, option: str = "--out", error: type[UserError] = UserError) -> Path:
+    """``path`` as a Path if a file can be written there (checked before any work, so a bad
+    ``--out`` fails at once, not after the work it would have saved)."""
+    p = Path(path)
+    if p.is_dir():
+        raise error(f"{option} {str(p)!r} is a directory; give a file name")
+    parent = next((q for q in p.parents if q.exists()), Path("."))
+    if not parent.is_dir():
+        raise error(f"{option} {str(p)!r}: {str(parent)!r} is a file, not a directory")
+    if not os.access(parent, os.W_OK):
+        raise error(f"{option} {str(p)!r}: cannot write in {str(parent)!r} (permission denied)")
+    return p
+
+
 def read_user_bytes(path: str | Path, what: str, error: type[UserError] = UserError) -> bytes:
     """The bytes of a user file, checked by :func:`check_user_file`."""
     p = check_user_file(path, what, error)
@@ -144,6 +156,9 @@ def _json_type(v: Any) -> str:
 def flatten_named(tree: Any, prefix: str = "") -> dict[str, np.ndarray]:
     """A pytree as ``{path: numpy array}`` (typed PRNG keys become their uint32 key data;
     ``jax.ShapeDtypeStruct`` leaves become zeros of that shape)."""
+    import jax
+    import jax.numpy as jnp
+
     out: dict[str, np.ndarray] = {}
     leaves, _ = jax.tree_util.tree_flatten_with_path(tree)
     for path, leaf in leaves:
@@ -165,6 +180,9 @@ def unflatten_named(template: Any, arrays: dict[str, np.ndarray], prefix: str = 
     ``batch_dims`` leading axes are allowed in the arrays on top of the template's leaf shapes.
     Raises ``KeyError``/``ValueError`` naming the first missing or mis-shaped entry.
     """
+    import jax
+    import jax.numpy as jnp
+
     leaves, treedef = jax.tree_util.tree_flatten_with_path(template)
     new = []
     for path, leaf in leaves:
@@ -184,6 +202,6 @@ def unflatten_named(template: Any, arrays: dict[str, np.ndarray], prefix: str = 
 
 
 __all__ = [
-    "MAX_USER_FILE_BYTES", "atomic_write", "check_user_file", "flatten_named", "read_user_bytes", "read_user_json",
+    "MAX_USER_FILE_BYTES", "atomic_write", "check_output_path", "check_user_file", "flatten_named", "read_user_bytes", "read_user_json",
     "read_user_text", "unflatten_named", "write_json_atomic", "write_text_atomic",
 ]

@@ -34,7 +34,9 @@ def _is_number(v: Any) -> bool:
 
 def int_at_least(low: int) -> Rule:
     def rule(v: Any) -> str | None:
-        return None if _is_int(v) and v >= low else f"an integer at least {low}"
+        if not _is_int(v):
+            return f"an integer at least {low}"
+        return None if v >= low else f"at least {low}"
 
     return rule
 
@@ -72,7 +74,16 @@ def layer_sizes(v: Any) -> str | None:
     return None if ok else "a non-empty list of layer sizes, each at least 1"
 
 
+def int_in(low: int, high: int) -> Rule:
+    def rule(v: Any) -> str | None:
+        return None if _is_int(v) and low <= v <= high else f"an integer in [{low}, {high}]"
+
+    return rule
+
+
 COUNT = int_at_least(1)
+#: A seed: what NumPy's and JAX's generators both take.
+SEED = int_in(0, 2**32 - 1)
 COUNT_OR_ZERO = int_at_least(0)
 PROBABILITY = number_in(0.0, 1.0)
 DISCOUNT = number_in(0.0, 1.0, high_open=True)
@@ -95,10 +106,11 @@ FIELD_RULES: dict[str, Rule] = {
     **{
         name: COUNT_OR_ZERO
         for name in (
-            "seed", "eval_every", "lookahead_steps", "eps_decay_episodes", "agreement_decay_episodes", "pretrain_samples",
+            "eval_every", "lookahead_steps", "eps_decay_episodes", "agreement_decay_episodes", "pretrain_samples",
             "pretrain_updates",
         )
     },
+    "seed": SEED,
     "actor_average_from": optional(COUNT_OR_ZERO),
     "gamma": DISCOUNT,
     **{name: PROBABILITY for name in ("eps_start", "eps_end", "per_alpha", "per_beta0")},
@@ -151,6 +163,6 @@ def check_config(cfg: Any, *, label: Callable[[str], str] = option_name, error: 
 
 
 __all__ = [
-    "COUNT", "COUNT_OR_ZERO", "DISCOUNT", "FIELD_RULES", "NON_NEGATIVE", "POSITIVE", "PROBABILITY", "check_config",
-    "check_values", "finite", "int_at_least", "number_in", "option_name", "optional", "rule_for",
+    "COUNT", "COUNT_OR_ZERO", "DISCOUNT", "FIELD_RULES", "NON_NEGATIVE", "POSITIVE", "PROBABILITY", "SEED", "check_config",
+    "check_values", "finite", "int_at_least", "int_in", "number_in", "option_name", "optional", "rule_for",
 ]

@@ -162,6 +162,7 @@ def apply_setting(spec: Any, setting: str | None, *, p_arrive: float | None = No
 def run_eval(cfg: EvalConfig) -> int:
     """Evaluate what ``cfg`` names and print the result (or one JSON object); raises
     ``UserError`` on bad input."""
+    from hybridmarl.io import check_output_path
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.task import (
         TaskSpec,
@@ -170,9 +171,11 @@ def run_eval(cfg: EvalConfig) -> int:
         default_enemy,
         make_task,
     )
+    from hybridmarl.validate import COUNT, PROBABILITY, SEED, check_values, optional
 
-    if cfg.n < 1:
-        raise UserError("--n must be at least 1")
+    check_values({"n": cfg.n, "seed": cfg.seed, "p_arrive": cfg.p_arrive}, {"n": COUNT, "seed": SEED, "p_arrive": optional(PROBABILITY)})
+    if cfg.out:
+        check_output_path(cfg.out)
     if (cfg.run_dir is None) == (cfg.script is None):
         raise UserError("give exactly one of --run-dir (a trained policy) or --script")
     if cfg.script is not None and cfg.enemy_run_dir and E.is_search_spec(cfg.script):
@@ -328,13 +331,18 @@ def run_demos_info(cfg: DemosInfoConfig) -> int:
 
 def run_demos_collect(cfg: DemosCollectConfig) -> int:
     """Record the demonstrations ``cfg`` describes; raises ``UserError`` on bad input."""
+    from hybridmarl.io import check_output_path
     from hybridmarl.training import demos as D
     from hybridmarl.training.task import TaskSpec, canonical_env, canonical_script, default_enemy
+    from hybridmarl.validate import COUNT, DISCOUNT, PROBABILITY, SEED, check_values, optional
 
+    check_values(
+        {"n": cfg.n, "seed": cfg.seed, "num_envs": cfg.num_envs, "gamma": cfg.gamma, "p_arrive": cfg.p_arrive, "max_turns": cfg.max_turns},
+        {"n": COUNT, "seed": SEED, "num_envs": COUNT, "gamma": DISCOUNT, "p_arrive": optional(PROBABILITY), "max_turns": COUNT},
+    )
+    check_output_path(cfg.out)
     env = canonical_env(cfg.env)
     demo = canonical_script(env, cfg.demonstrator)
-    if cfg.n < 1:
-        raise UserError("--n must be at least 1")
     if env == "combat":
         enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
         spec = TaskSpec(env=env, scenario=cfg.scenario, enemy=enemy, max_turns=cfg.max_turns)

@@ -222,9 +222,13 @@ class TrainConfig:
         path = Path(self.demonstrator)
         if not path.is_file():
             raise TaskError(f"{path}: no such dataset file")
-        from hybridmarl.training.demos import peek_meta
+        from hybridmarl.training.demos import load_dataset, peek_meta
 
-        return str(peek_meta(path).get("demonstrator", ""))
+        name = peek_meta(path).get("demonstrator")
+        if not isinstance(name, str) or not name:
+            load_dataset(path)  # names the file's problem
+            raise TaskError(f"{path}: the dataset does not name its demonstrator")
+        return name
 
     def demonstrator_name(self) -> str:
         """The script name (canonical), or 'dataset:<file name>'."""
