@@ -314,9 +314,12 @@ def _units_before_loading(cfg: BattleConfig) -> int | None:
         try:
             doc = read_user_json(cfg.scenario_file, "scenario file")
             sides = [doc["player0"]] + ([] if doc.get("kind") in ("separated", "symmetric") else [doc["player1"]])
-            return sum(int(e["count"]) for side in sides for e in side) * (2 if len(sides) == 1 else 1)
+            counts = [sum(int(e["count"]) for e in side) for side in sides]
         except Exception:
             return None
+        if max(counts) > 512:  # more than engine.scenarios.MAX_UNITS_PER_SIDE: the loader says so
+            return None
+        return sum(counts) * (2 if len(sides) == 1 else 1)
     m = re.fullmatch(r"m(\d+)v(\d+)(-apart)?", (cfg.scenario or "").strip().lower())
     return int(m.group(1)) + int(m.group(2)) if m else None
 

@@ -319,7 +319,7 @@ def run_demos_info(cfg: DemosInfoConfig) -> int:
     a = ds.arrays
     summary = {
         "path": cfg.path,
-        **{k: ds.meta[k] for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
+        **{k: ds.meta.get(k) for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
         "observations": ds.size,
         "episodes": int(a["episode"].max()) + 1,
         "agent_decisions": int((a["legal"].sum(-1) >= 2).sum()),

@@ -171,6 +171,7 @@ class RunLogger:
         if self.tb is not None:
             self.tb.flush()
             self.tb.close()
+            self.tb = None
 
 
 def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:

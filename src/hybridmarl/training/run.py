@@ -177,7 +177,7 @@ class Run:
         self.spec = cfg.task_spec()
         self.task = make_task(self.spec)
         self.run_dir = resolve_run_dir(algo, cfg)
-        if cfg.resume and not (self.run_dir / "config.json").is_file():
+        if cfg.resume and not (self.run_dir / "config.json").is_file() and latest_checkpoint(self.run_dir) is None:
             what = "no such run directory" if not self.run_dir.exists() else "not a run directory (no config.json)"
             raise CheckpointError(f"--resume: {self.run_dir}: {what}; drop --resume to start a new run there")
         self.lock = RunLock(self.run_dir)
@@ -229,9 +229,8 @@ class Run:
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         try:
-            if exc_type is not None:  # TrainingDiverged, bad input, an interrupt: close the logs
-                self._close_progress()
-                self.log.close()
+            self._close_progress()
+            self.log.close()
             if isinstance(exc, TrainingDiverged):
                 raise TrainingDiverged(f"{exc} {self._after_divergence()}") from None
             if isinstance(exc, KeyboardInterrupt) and self.resumable:

@@ -100,7 +100,7 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
     for key in ("algo", "config", "task"):
         if key not in doc:
             raise CheckpointError(f"{path}: missing key {key!r} (not a complete hybridmarl run config)")
-    if doc["algo"] not in ALGOS:
+    if not isinstance(doc["algo"], str) or doc["algo"] not in ALGOS:
         raise CheckpointError(f"{path}: algo must be one of {', '.join(ALGOS)}, got {doc['algo']!r}")
     mod = algo_module(doc["algo"])
     check_config_fields(path, "config", doc["config"], type(mod.PRESETS["toy"]("combat"))())
@@ -212,8 +212,10 @@ def check_resume_config(checkpoint: Path, saved: Any, current: dict[str, Any]) -
     from the checkpoint's in a field outside :data:`RESUME_MAY_CHANGE`. ``saved``: the
     checkpoint meta's ``config`` (flat field names); ``current``: ``config_to_dict`` of the
     config asked for. Fields in only one of them (a version added or removed them) pass."""
+    if saved is None:
+        return  # a checkpoint that does not record its config (written by hand or by a tool)
     if not isinstance(saved, dict):
-        raise CheckpointError(f"checkpoint {checkpoint}: meta.json has no config object")
+        raise CheckpointError(f"checkpoint {checkpoint}: meta.json's config must be an object, not {type(saved).__name__}")
     for name, value in current.items():
         if name in RESUME_MAY_CHANGE or name not in saved:
             continue
