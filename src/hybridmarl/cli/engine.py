@@ -284,7 +284,7 @@ def run_battle(cfg: BattleConfig) -> int:
         for i, (a, b) in enumerate(directions):
             tally = _Tally()
             if out is not None:
-                out.write('{"swapped": {"results": [' if i == 1 else '{"results": [')
+                out.write(', "swapped": {"results": [' if i == 1 else '{"results": [')
             for k in range(chunks):
                 states, seed = chunk_states(k)
                 res = play(a, b, states, seed)
