@@ -417,7 +417,7 @@ def _checkpoint_cases() -> list[Case]:
         return make
 
     kernel = "actor.params.Dense_0.kernel"
-    structural: dict[str, Callable[[dict[str, np.ndarray]], None]] = {
+    structural: dict[str, Callable[[dict[str, np.ndarray]], Any]] = {
         "no arrays at all": lambda a: a.clear(),
         "an array missing": lambda a: a.pop(kernel),
         "wrong shape": lambda a: a.__setitem__(kernel, np.zeros((3, 3), np.float32)),
