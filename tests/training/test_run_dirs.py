@@ -172,7 +172,7 @@ def test_long_series_are_played_in_chunks(tmp_path, capsys, monkeypatch):
 
     one = tmp_path / "one.json"
     assert main(["battle", "--scenario", "m2v2", "--n", "3", "--no-progress", "--engine", "native", "--out", str(one)]) == 0
-    monkeypatch.setattr(cli_engine, "CHUNK_BATTLES", 3)
+    monkeypatch.setattr(cli_engine, "CHUNK_UNITS", 12)  # 3 battles of m2v2 a chunk
     two = tmp_path / "two.json"
     assert main(["battle", "--scenario", "m2v2", "--n", "7", "--no-progress", "--engine", "native", "--swap", "--out", str(two)]) == 0
     a, b = json.loads(one.read_text()), json.loads(two.read_text())

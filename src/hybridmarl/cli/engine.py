@@ -71,8 +71,8 @@ class BattleConfig:
     """Show a progress bar."""
     yes: bool = False
     """Play a series above the size guard (more than CONFIRM_UNIT_BATTLES battles x units, e.g.
-    2,000,000 m5v5 battles) without asking; it is played and written in chunks of
-    CHUNK_BATTLES, so memory stays bounded (docs/engine.md#large-battle-series)."""
+    2,000,000 m5v5 battles) without asking; it is played and written in chunks (100,000 m5v5
+    battles), so memory stays bounded (docs/engine.md#large-battle-series)."""
     swap: bool = False
     """Also play every state with the scripts swapped and report both directions."""
     engine: Literal["auto", "native", "jax"] = "auto"
@@ -109,14 +109,16 @@ class TraceConfig:
 #: ``battle`` asks for --yes above this many battles x units (2,000,000 m5v5 battles), after
 #: printing its time and output-size estimate and before allocating anything.
 CONFIRM_UNIT_BATTLES = 20_000_000
-#: Battles generated, played and written at once: a longer series is played chunk by chunk, so
-#: its memory does not grow with --n (chunk k > 0 draws its states from seed (seed, k)).
-CHUNK_BATTLES = 100_000
-#: Unit-battles per second of state generation plus native play, measured for m5v5 on the
-#: reference machine (docs/engine.md#large-battle-series); used only for the estimate.
-UNIT_BATTLES_PER_S = 150_000
-#: Bytes of --out JSON per battle and per unit (its final HP), for the estimate.
-OUT_BYTES_PER_BATTLE, OUT_BYTES_PER_UNIT = 60, 5
+#: Units (battles x units per battle) generated, played and written at once: a longer series is
+#: played chunk by chunk, so its memory does not grow with --n (100,000 m5v5 battles a chunk;
+#: chunk k > 0 draws its start states from seed (seed, k)).
+CHUNK_UNITS = 1_000_000
+#: Unit-battles per CPU-second of state generation plus native play: 100,000 (m5v5, 400,000
+#: battles in 41.5 CPU-s, 2026-12-02, 2-core x86-64 CPU VM, shared; docs/engine.md). Used
+#: only for the estimate.
+UNIT_BATTLES_PER_S = 100_000
+#: Bytes of --out JSON per battle and per unit (its final HP): 90 per m5v5 battle, measured.
+OUT_BYTES_PER_BATTLE, OUT_BYTES_PER_UNIT = 60, 3
 #: Highest --index of ``trace`` on a named scenario: its states are drawn in sequence, so
 #: tracing state i draws the i before it.
 MAX_TRACE_INDEX = 10_000
@@ -142,9 +144,14 @@ def check_series_size(n: int, units: int, *, swap: bool, out: bool, yes: bool) -
     out_part = f", --out about {size / 1e9:.1f} GB" if out else ""
     raise UserError(
         f"--n {n} battles of {units} units{' (twice, --swap)' if swap else ''} would take about "
-        f"{_duration(work / UNIT_BATTLES_PER_S)} on one CPU core{out_part} (memory stays under ~1 GB, "
-        f"played in chunks of {CHUNK_BATTLES}): pass --yes to play them, or a smaller --n"
+        f"{_duration(work / UNIT_BATTLES_PER_S)} of CPU time{out_part} (memory stays bounded: they are "
+        f"played in chunks of {chunk_battles(units)}): pass --yes to play them, or a smaller --n"
     )
+
+
+def chunk_battles(units: int) -> int:
+    """Battles per chunk of a series of battles of ``units`` units (:data:`CHUNK_UNITS`)."""
+    return max(1, CHUNK_UNITS // max(units, 1))
 
 
 def _load_map(path: str | None):
@@ -190,8 +197,8 @@ def _check_player_spec(spec: str) -> None:
 def run_battle(cfg: BattleConfig) -> int:
     """Play the battle series ``cfg`` describes and print its table; raises
     :class:`~hybridmarl.engine.scenarios.InputError` (a ``UserError``) on bad input, before any
-    output is written. A series longer than :data:`CHUNK_BATTLES` is generated, played and
-    written chunk by chunk."""
+    output is written. A series longer than a chunk (:data:`CHUNK_UNITS`) is generated, played
+    and written chunk by chunk."""
     # (engine.scenarios' InputError is a UserError; importing it loads JAX, after the size guard)
     from hybridmarl.errors import UserError as InputError
     from hybridmarl.io import check_output_path
@@ -241,9 +248,11 @@ def run_battle(cfg: BattleConfig) -> int:
         raise InputError(str(e)) from None
     engine = resolve_engine(cfg.engine)
 
+    chunk = chunk_battles(units)
+
     def chunk_states(k: int) -> tuple[Any, int]:
         """The start states of chunk ``k`` and the seed its battles play under."""
-        first, m = k * CHUNK_BATTLES, min(CHUNK_BATTLES, n - k * CHUNK_BATTLES)
+        first, m = k * chunk, min(chunk, n - k * chunk)
         if loaded is not None:
             return loaded[first : first + m], cfg.seed
         assert sc is not None
@@ -277,7 +286,7 @@ def run_battle(cfg: BattleConfig) -> int:
     if setting.name != "sparcraft":
         label += f", {setting.name} setting"
     directions = [(cfg.p0, cfg.p1)] + ([(cfg.p1, cfg.p0)] if cfg.swap else [])
-    chunks = (n + CHUNK_BATTLES - 1) // CHUNK_BATTLES
+    chunks = (n + chunk - 1) // chunk
     with contextlib.ExitStack() as stack:
         out = stack.enter_context(atomic_write(cfg.out)) if cfg.out else None
         tallies = []
