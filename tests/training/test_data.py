@@ -329,6 +329,42 @@ def test_exact_resume(tj_dataset, tmp_path, average):
         train(base.replace(run_dir=str(tmp_path / "split")))
     if not average:
         _resume_after_a_kill(tmp_path / "straight", tmp_path / "killed", base)
+        _resume_after_ctrl_c(tmp_path / "straight", tmp_path / "interrupted", base)
+
+
+def _resume_after_ctrl_c(straight, run_dir, base) -> None:
+    """Ctrl-C (SIGINT) inside the second chunk: the loop ends with that chunk, saves a
+    checkpoint and raises 'Interrupted' naming the resume command; --resume then ends equal to
+    the uninterrupted run. (The spawned-process version is tests/training/test_kill_resume.py.)"""
+    import os
+    import signal
+    import threading
+    import time
+
+    from hybridmarl.algos.hybrid import train
+    from hybridmarl.errors import Interrupted
+    from hybridmarl.training import checkpoint as ck
+
+    def interrupt_when_paused() -> None:
+        while ck._reached.get("chunk", 0) < 2:
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(ck.PAUSE_ENV, "chunk:2")
+        mp.setattr(ck, "_reached", {})
+        threading.Thread(target=interrupt_when_paused, daemon=True).start()
+        with pytest.raises(Interrupted, match=rf"checkpoint saved; continue with: hybridmarl train --run-dir {run_dir} --resume"):
+            train(base.replace(total_episodes=8, run_dir=str(run_dir)))
+    _, meta = ck.load_checkpoint(ck.list_checkpoints(run_dir)[-1])
+    assert meta["iterations"] == 2 and meta["log_rows"]["train"] == len(_log_rows(run_dir / "train.csv")) == 2
+    train(base.replace(total_episodes=8, run_dir=str(run_dir), resume=True))
+    a, _ = ck.load_checkpoint(ck.list_checkpoints(straight)[-1])
+    b, _ = ck.load_checkpoint(ck.list_checkpoints(run_dir)[-1])
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    for log in ("train.csv", "episodes.csv", "evals.csv"):
+        assert _log_rows(run_dir / log) == _log_rows(straight / log), log
 
 
 #: train.csv columns that time the run (they differ between any two runs).

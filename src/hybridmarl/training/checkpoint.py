@@ -47,6 +47,34 @@ class CheckpointError(UserError):
     """A missing or unreadable checkpoint (one-line message)."""
 
 
+#: Environment variable naming a point where a training process pauses (for tests that kill
+#: or interrupt it there): ``chunk:N`` (inside the N-th chunk of the training loop, before it is
+#: logged), ``checkpoint:N`` (inside the N-th checkpoint write, before the rename),
+#: ``evaluation`` (before the final evaluation).
+PAUSE_ENV = "HYBRIDMARL_PAUSE_AT"
+_reached: dict[str, int] = {}
+
+
+def pause_point(point: str, resume: Any = None) -> None:
+    """Pause here if :data:`PAUSE_ENV` names this point (and this is its N-th time): say so on
+    stderr, then wait until ``resume()`` is true (e.g. a Ctrl-C was received) or forever."""
+    wanted = os.environ.get(PAUSE_ENV)
+    if not wanted:
+        return
+    name, _, nth = wanted.partition(":")
+    if name != point:
+        return
+    _reached[point] = _reached.get(point, 0) + 1
+    if _reached[point] != int(nth or 1):
+        return
+    import sys
+    import time
+
+    print(f"hybridmarl: paused at {wanted}", file=sys.stderr, flush=True)
+    while resume is None or not resume():
+        time.sleep(0.05)
+
+
 def _contiguous(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     out = {}
     for k, v in arrays.items():
@@ -77,6 +105,7 @@ def save_checkpoint(
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp_{final.name}_", dir=root))
     try:
         save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
+        pause_point("checkpoint")
         doc = dict(meta)
         doc["format_version"] = FORMAT_VERSION
         doc["step"] = int(step)

@@ -53,6 +53,7 @@ from hybridmarl.training.checkpoint import (
     CheckpointError,
     latest_checkpoint,
     load_checkpoint,
+    pause_point,
     prefixed,
     save_checkpoint,
     subtree,
@@ -339,6 +340,7 @@ class Run:
 
     def count(self, stats: dict[str, np.ndarray], env_steps: int) -> None:
         """Count a chunk: its finished episodes (per-episode metrics 'stats') and env steps."""
+        pause_point("chunk", lambda: self._interrupted)
         st = self.state
         n_new = int(next(iter(stats.values())).shape[0]) if stats else 0
         self._new = (st.episodes, n_new, stats)
@@ -404,6 +406,7 @@ class Run:
         from hybridmarl.training import plots
 
         st = self.state
+        pause_point("evaluation")
         result = self.evaluate(self._policy())
         result.update(before or {})
         result.update(enemy=self.eval_task.enemy, episodes=st.episodes, **counters, **self.clock.elapsed())

@@ -93,7 +93,7 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
     run_dir = Path(run_dir)
     path = run_dir / "config.json"
     if not run_dir.is_dir():
-        raise CheckpointError(f"{run_dir}: no such run directory")
+        raise CheckpointError(f"{run_dir}: no such run directory (no config.json)")
     if not path.exists():
         raise CheckpointError(f"{run_dir}: no config.json (not a hybridmarl run directory)")
     doc = read_user_json(path, "run config", CheckpointError)
