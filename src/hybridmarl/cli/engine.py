@@ -70,7 +70,7 @@ class BattleConfig:
     progress: bool = True
     """Show a progress bar."""
     yes: bool = False
-    """Play a series above the size guard (more than CONFIRM_UNIT_BATTLES battles x units, e.g.
+    """Play a series above the size guard (more than 20,000,000 battles x units per battle, e.g.
     2,000,000 m5v5 battles) without asking; it is played and written in chunks (100,000 m5v5
     battles), so memory stays bounded (docs/engine.md#large-battle-series)."""
     swap: bool = False
