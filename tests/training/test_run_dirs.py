@@ -183,3 +183,16 @@ def test_long_series_are_played_in_chunks(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(cli_engine, "CONFIRM_UNIT_BATTLES", 10)  # --yes passes the guard
     assert main(["battle", "--scenario", "m2v2", "--n", "4", "--no-progress", "--engine", "native"]) == 2
     assert main(["battle", "--scenario", "m2v2", "--n", "4", "--no-progress", "--engine", "native", "--yes"]) == 0
+
+
+def test_every_preset_keeps_the_rules():
+    """The number rules refuse nothing a preset (or a config's defaults) sets."""
+    from hybridmarl.algos import ALGOS, algo_module
+    from hybridmarl.validate import check_config
+
+    for algo in ALGOS:
+        mod = algo_module(algo)
+        for make in mod.PRESETS.values():
+            for env in ("combat", "traffic_junction"):
+                check_config(make(env))
+        check_config(type(mod.PRESETS["toy"]("combat"))())
