@@ -37,7 +37,7 @@ def test_refuses_run_made_with_other_settings(tmp_path, capsys):
     run.mkdir()
     cfg = QuickstartConfig(scenario="m3v3", preset="toy", seed=0)
     made = training_config(cfg, "attack-closest", "attack-weakest", run, resume=False).replace(seed=1)
-    doc = {"algo": "hybrid", "config": {**config_to_dict(made), "demonstrator_name": "attack-closest"}}
+    doc = {"algo": "hybrid", "config": {**config_to_dict(made), "demonstrator_name": "attack-closest"}, "task": made.task_spec().to_dict()}
     (run / "config.json").write_text(json.dumps(doc))
     (run / "eval.json").write_text("{}")
     argv = ["quickstart", "--run-dir", str(run), "--scenario", "m3v3", "--preset", "toy", "--seed", "0", "--no-progress"]
@@ -49,3 +49,10 @@ def test_refuses_run_made_with_other_settings(tmp_path, capsys):
     (run / "config.json").write_text(json.dumps(doc))
     assert main(argv) == 2
     assert "'bc' run" in capsys.readouterr().err
+    # Another seed is another run directory: the quickstart of seed 1 never lands in seed 0's.
+    assert training_config(QuickstartConfig(seed=1), "attack-closest", "attack-weakest", default_run_dir("m5v5", "attack-closest", 1), resume=False).run_dir.endswith("-s1")
+    # A damaged config.json is named, not reused.
+    (run / "config.json").write_text("{")
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "config.json" in err[0] and "malformed JSON" in err[0], err

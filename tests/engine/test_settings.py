@@ -186,7 +186,8 @@ def test_resume_under_another_setting_is_refused(tmp_path):
     save_checkpoint(run_dir, 4, {"x": np.zeros(1, np.float32)}, {"task": {"env": "traffic_junction"}})
     with pytest.raises(UserError, match=r"trained under setting 'sparcraft'; cannot resume it under setting 'paper'"):
         Run("hybrid", base.replace(setting="paper"))
-    Run("hybrid", base).log.close()  # the same setting resumes
+    with Run("hybrid", base):  # the same setting resumes
+        pass
     save_checkpoint(run_dir, 8, {"x": np.zeros(1, np.float32)}, {"task": {"env": "traffic_junction", "setting": "paper"}})
     with pytest.raises(UserError, match=r"'paper'; cannot resume it under setting 'sparcraft'"):
         Run("hybrid", base)

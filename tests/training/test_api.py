@@ -115,10 +115,17 @@ def test_divergence_raises_and_the_command_line_exits_3(tmp_path, capsys):
     from hybridmarl.cli.main import main
     from hybridmarl.errors import EXIT_DIVERGED, TrainingDiverged
 
-    cfg = BC["toy"]("traffic_junction").replace(progress=False, actor_lr=float("nan"), run_dir=str(tmp_path / "api"))
+    # A learning rate this large is valid input (finite, > 0) that drives the loss to NaN.
+    cfg = BC["toy"]("traffic_junction").replace(progress=False, actor_lr=1e30, run_dir=str(tmp_path / "api"))
     with pytest.raises(TrainingDiverged, match="behavioural-cloning loss"):
         hybridmarl.train(cfg)
-    argv = ["train", "--algo", "bc", "--preset", "toy", "--env", "traffic_junction", "--actor-lr", "nan", "--no-progress", "--run-dir", str(tmp_path / "cli")]
+    argv = ["train", "--algo", "bc", "--preset", "toy", "--env", "traffic_junction", "--actor-lr", "1e30", "--no-progress", "--run-dir", str(tmp_path / "cli")]
     assert main(argv) == EXIT_DIVERGED
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "training stopped" in err[0] and "NaN" in err[0], err
+    assert "no checkpoint was saved" in err[0] and "still valid" not in err[0], err  # BC saves only at its end
+    # A NaN learning rate is bad input, refused before any work (exit 2, no run directory).
+    assert main([*argv[:-1], str(tmp_path / "nan"), "--actor-lr", "nan"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--actor-lr must be a finite number > 0, got nan" in err[0], err
+    assert not (tmp_path / "nan").exists()

@@ -319,11 +319,99 @@ def test_exact_resume(tj_dataset, tmp_path, average):
         timed = [(float(r["wall_s"]), float(r["cpu_s"])) for r in csv.DictReader(f)]
     walls, cpus = zip(*timed, strict=True)
     assert list(walls) == sorted(walls) and list(cpus) == sorted(cpus) and walls[-1] > m4["wall_s"], timed
+    # Logs read as one uninterrupted run, row for row (timings aside).
+    for log in ("train.csv", "episodes.csv"):
+        assert _log_rows(tmp_path / "split" / log) == _log_rows(tmp_path / "straight" / log), log
     # Without --resume an existing run is refused.
     from hybridmarl.training.task import TaskError
 
     with pytest.raises(TaskError, match="--resume"):
         train(base.replace(run_dir=str(tmp_path / "split")))
+    if not average:
+        _resume_after_a_kill(tmp_path / "straight", tmp_path / "killed", base)
+        _resume_after_ctrl_c(tmp_path / "straight", tmp_path / "interrupted", base)
+
+
+def _resume_after_ctrl_c(straight, run_dir, base) -> None:
+    """Ctrl-C (SIGINT) inside the second chunk: the loop ends with that chunk, saves a
+    checkpoint and raises 'Interrupted' naming the resume command; --resume then ends equal to
+    the uninterrupted run. (The spawned-process version is tests/training/test_kill_resume.py.)"""
+    import os
+    import signal
+    import threading
+    import time
+
+    from hybridmarl.algos.hybrid import train
+    from hybridmarl.errors import Interrupted
+    from hybridmarl.training import checkpoint as ck
+
+    def interrupt_when_paused() -> None:
+        while ck._reached.get("chunk", 0) < 2:
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(ck.PAUSE_ENV, "chunk:2")
+        mp.setattr(ck, "_reached", {})
+        threading.Thread(target=interrupt_when_paused, daemon=True).start()
+        with pytest.raises(Interrupted, match=rf"checkpoint saved; continue with: hybridmarl train --run-dir {run_dir} --resume"):
+            train(base.replace(total_episodes=8, run_dir=str(run_dir)))
+    _, meta = ck.load_checkpoint(ck.list_checkpoints(run_dir)[-1])
+    assert meta["iterations"] == 2 and meta["log_rows"]["train"] == len(_log_rows(run_dir / "train.csv")) == 2
+    train(base.replace(total_episodes=8, run_dir=str(run_dir), resume=True))
+    a, _ = ck.load_checkpoint(ck.list_checkpoints(straight)[-1])
+    b, _ = ck.load_checkpoint(ck.list_checkpoints(run_dir)[-1])
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    for log in ("train.csv", "episodes.csv", "evals.csv"):
+        assert _log_rows(run_dir / log) == _log_rows(straight / log), log
+
+
+#: train.csv columns that time the run (they differ between any two runs).
+TIMING = ("chunk_s", "wall_s", "cpu_s", "env_steps_per_s")
+
+
+def _log_rows(path) -> list[dict[str, str]]:
+    with open(path, newline="") as f:
+        return [{k: v for k, v in r.items() if k not in TIMING} for r in csv.DictReader(f)]
+
+
+def _resume_after_a_kill(straight, killed, base) -> None:
+    """What a kill after a periodic checkpoint leaves (rows logged after it, no later checkpoint,
+    a checkpoint write cut short, the dead process's lock file): --resume removes the leftovers,
+    takes over the lock, and ends with the uninterrupted run's parameters and log rows."""
+    import contextlib
+    import io
+    import shutil
+
+    from hybridmarl.algos.hybrid import train
+    from hybridmarl.training.checkpoint import list_checkpoints, load_checkpoint
+    from hybridmarl.training.rundir import LOCK_NAME
+
+    shutil.copytree(straight, killed)
+    *_, middle, _ = list_checkpoints(killed)
+    for later in list_checkpoints(killed):
+        if int(later.name[5:]) > int(middle.name[5:]):
+            shutil.rmtree(later)
+    (killed / "eval.json").unlink()
+    assert len(_log_rows(killed / "train.csv")) > json.loads((middle / "meta.json").read_text())["log_rows"]["train"]
+    partial = killed / "checkpoints" / ".tmp_ckpt_000000008_x1"
+    partial.mkdir()
+    (partial / "arrays.safetensors").write_bytes(bytes(4096))
+    (killed / LOCK_NAME).write_text(json.dumps({"pid": 2**22 + 7, "host": "gone"}))  # above Linux's pid_max
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        train(base.replace(total_episodes=8, run_dir=str(killed), resume=True))
+    text = out.getvalue()
+    assert "taking over the lock of process 4194311" in text and "partial writes" in text, text
+    assert not partial.exists() and not (killed / LOCK_NAME).exists()
+    a, _ = load_checkpoint(list_checkpoints(straight)[-1])
+    b, _ = load_checkpoint(list_checkpoints(killed)[-1])
+    assert set(a) == set(b)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    for log in ("train.csv", "episodes.csv", "evals.csv"):
+        assert _log_rows(killed / log) == _log_rows(straight / log), log
 
 
 def test_tj_time_penalty_reaches_the_task_and_costs_tau_per_car():

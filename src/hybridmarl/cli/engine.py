@@ -12,11 +12,16 @@ missing file) raises :class:`~hybridmarl.errors.UserError` before any output fil
 
 from __future__ import annotations
 
+import contextlib
+import json
 import sys
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import tyro
+
+from hybridmarl.io import atomic_write
 
 
 @dataclass(frozen=True)
@@ -64,6 +69,10 @@ class BattleConfig:
     """Optional SparCraft ASCII walkability map (width, height in 8-px walk tiles, rows of 0/1)."""
     progress: bool = True
     """Show a progress bar."""
+    yes: bool = False
+    """Play a series above the size guard (more than 20,000,000 battles x units per battle, e.g.
+    2,000,000 m5v5 battles) without asking; it is played and written in chunks (100,000 m5v5
+    battles), so memory stays bounded (docs/engine.md#large-battle-series)."""
     swap: bool = False
     """Also play every state with the scripts swapped and report both directions."""
     engine: Literal["auto", "native", "jax"] = "auto"
@@ -91,9 +100,58 @@ class TraceConfig:
     """Named setting (docs/engine.md#settings): the rules, and the geometry of the named
     scenario."""
     index: int = 0
-    """Which state to trace."""
+    """Which state to trace (a named scenario: at most MAX_TRACE_INDEX, its states are drawn in
+    sequence)."""
     seed: int = 0
     """Seed for state generation."""
+
+
+#: ``battle`` asks for --yes above this many battles x units (2,000,000 m5v5 battles), after
+#: printing its time and output-size estimate and before allocating anything.
+CONFIRM_UNIT_BATTLES = 20_000_000
+#: Units (battles x units per battle) generated, played and written at once: a longer series is
+#: played chunk by chunk, so its memory does not grow with --n (100,000 m5v5 battles a chunk;
+#: chunk k > 0 draws its start states from seed (seed, k)).
+CHUNK_UNITS = 1_000_000
+#: Unit-battles per CPU-second of state generation plus native play: 100,000 (m5v5, 400,000
+#: battles in 41.5 CPU-s, 2026-12-02, 2-core x86-64 CPU VM, shared; docs/engine.md). Used
+#: only for the estimate.
+UNIT_BATTLES_PER_S = 100_000
+#: Bytes of --out JSON per battle and per unit (its final HP): 90 per m5v5 battle, measured.
+OUT_BYTES_PER_BATTLE, OUT_BYTES_PER_UNIT = 60, 3
+#: Highest --index of ``trace`` on a named scenario: its states are drawn in sequence, so
+#: tracing state i draws the i before it.
+MAX_TRACE_INDEX = 10_000
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+def check_series_size(n: int, units: int, *, swap: bool, out: bool, yes: bool) -> None:
+    """Refuse (one line: the estimate and the way on) a series of ``n`` battles of ``units``
+    units each that is above :data:`CONFIRM_UNIT_BATTLES` unless ``yes``."""
+    from hybridmarl.errors import UserError
+
+    work = n * units * (2 if swap else 1)
+    if work <= CONFIRM_UNIT_BATTLES or yes:
+        return
+    size = n * (2 if swap else 1) * (OUT_BYTES_PER_BATTLE + OUT_BYTES_PER_UNIT * units)
+    out_part = f", --out about {size / 1e9:.1f} GB" if out else ""
+    raise UserError(
+        f"--n {n} battles of {units} units{' (twice, --swap)' if swap else ''} would take about "
+        f"{_duration(work / UNIT_BATTLES_PER_S)} of CPU time{out_part} (memory stays bounded: they are "
+        f"played in chunks of {chunk_battles(units)}): pass --yes to play them, or a smaller --n"
+    )
+
+
+def chunk_battles(units: int) -> int:
+    """Battles per chunk of a series of battles of ``units`` units (:data:`CHUNK_UNITS`)."""
+    return max(1, CHUNK_UNITS // max(units, 1))
 
 
 def _load_map(path: str | None):
@@ -101,14 +159,13 @@ def _load_map(path: str | None):
         return None
     from hybridmarl.engine.scenarios import InputError
     from hybridmarl.engine.state import parse_ascii_map
+    from hybridmarl.io import read_user_text
 
+    text = read_user_text(path, "map file", InputError)
     try:
-        with open(path) as f:
-            return parse_ascii_map(f.read())
-    except FileNotFoundError:
-        raise InputError(f"map file {path!r} not found") from None
+        return parse_ascii_map(text)
     except ValueError as e:
-        raise InputError(f"{path}: {e}") from None
+        raise InputError(f"map file {path!r}: {str(e).removeprefix('map file: ')}") from None
 
 
 def _is_script(spec: str) -> bool:
@@ -140,25 +197,49 @@ def _check_player_spec(spec: str) -> None:
 def run_battle(cfg: BattleConfig) -> int:
     """Play the battle series ``cfg`` describes and print its table; raises
     :class:`~hybridmarl.engine.scenarios.InputError` (a ``UserError``) on bad input, before any
-    output is written."""
-    from hybridmarl.engine.battle import run_battles
-    from hybridmarl.engine.scenarios import InputError, load_states_file, resolve_scenario
-    from hybridmarl.engine.state import make_rules
-    from hybridmarl.io import write_json_atomic
+    output is written. A series longer than a chunk (:data:`CHUNK_UNITS`) is generated, played
+    and written chunk by chunk."""
+    # (engine.scenarios' InputError is a UserError; importing it loads JAX, after the size guard)
+    from hybridmarl.errors import UserError as InputError
+    from hybridmarl.io import check_output_path
+    from hybridmarl.validate import COUNT, COUNT_OR_ZERO, SEED, check_values, optional
+
+    check_values(
+        {"n": cfg.n, "seed": cfg.seed, "batch_size": cfg.batch_size, "stalemate_limit": cfg.stalemate_limit, "max_turns": cfg.max_turns},
+        {"n": COUNT, "seed": SEED, "batch_size": COUNT, "stalemate_limit": optional(COUNT_OR_ZERO), "max_turns": COUNT},
+        error=InputError,
+    )
+    if cfg.out:
+        check_output_path(cfg.out, error=InputError)
+    quick = None if cfg.states else _units_before_loading(cfg)
+    if quick is not None:  # the size guard before the engine (and JAX) is even imported
+        check_series_size(cfg.n, quick, swap=cfg.swap, out=bool(cfg.out), yes=cfg.yes)
+
+    from hybridmarl.engine.scenarios import load_states_file, resolve_scenario
     from hybridmarl.settings import resolve as resolve_setting
+
+    setting, overkill, stalemate_limit = resolve_setting(
+        cfg.setting, overkill=cfg.overkill, stalemate_limit=cfg.stalemate_limit
+    )
+    walkable = _load_map(cfg.map_file)
+    loaded: list | None = None
+    if cfg.states:
+        loaded = load_states_file(cfg.states, walkable=walkable)
+        n, label = len(loaded), cfg.states
+        units = max(len(st) for st in loaded)
+        sc = None
+    else:
+        sc = resolve_scenario(cfg.scenario, cfg.scenario_file, setting)
+        n, units = cfg.n, sc.n0 + sc.n1
+        label = f"{sc.name} (n={cfg.n}, seed={cfg.seed})"
+    check_series_size(n, units, swap=cfg.swap, out=bool(cfg.out), yes=cfg.yes)
+
+    from hybridmarl.engine.state import make_rules
 
     search = [not _is_script(s) for s in (cfg.p0, cfg.p1)]
     for s, is_search in zip((cfg.p0, cfg.p1), search, strict=True):
         if is_search:
             _check_player_spec(s)
-    if cfg.n < 1:
-        raise InputError("--n must be at least 1")
-    if cfg.batch_size < 1:
-        raise InputError("--batch-size must be at least 1")
-    setting, overkill, stalemate_limit = resolve_setting(
-        cfg.setting, overkill=cfg.overkill, stalemate_limit=cfg.stalemate_limit
-    )
-    walkable = _load_map(cfg.map_file)
     try:
         rules = make_rules(
             walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=cfg.max_turns
@@ -166,54 +247,119 @@ def run_battle(cfg: BattleConfig) -> int:
     except ValueError as e:
         raise InputError(str(e)) from None
     engine = resolve_engine(cfg.engine)
-    states: Any
-    if cfg.states:
-        states = load_states_file(cfg.states, walkable=walkable)
-        label = cfg.states
-    else:
-        sc = resolve_scenario(cfg.scenario, cfg.scenario_file, setting)
-        label = f"{sc.name} (n={cfg.n}, seed={cfg.seed})"
+
+    chunk = chunk_battles(units)
+
+    def chunk_states(k: int) -> tuple[Any, int]:
+        """The start states of chunk ``k`` and the seed its battles play under."""
+        first, m = k * chunk, min(chunk, n - k * chunk)
+        if loaded is not None:
+            return loaded[first : first + m], cfg.seed
+        assert sc is not None
+        seed = cfg.seed if k == 0 else int(np.random.SeedSequence([cfg.seed, k]).generate_state(1)[0])
         if engine == "native" and walkable is None and not any(search):
             # The same states as sc.generate, drawn straight into arrays: no per-unit objects.
             from hybridmarl.engine.native import from_arrays
 
-            states = from_arrays(sc.generate_arrays(cfg.n, cfg.seed))
-        else:
-            states = sc.generate(cfg.n, cfg.seed)
+            return from_arrays(sc.generate_arrays(m, seed)), seed
+        states = sc.generate(m, seed)
         if walkable is not None:
             from hybridmarl.engine.scenarios import parse_states_document, states_to_document
 
             states = parse_states_document(states_to_document(states), walkable=walkable)
+        return states, seed
 
-    if any(search):
-        # Search players decide on the host, turn by turn (hybridmarl.search.runner).
-        from hybridmarl.search import run_player_battles
+    def play(a: str, b: str, states: Any, seed: int):
+        if any(search):
+            # Search players decide on the host, turn by turn (hybridmarl.search.runner).
+            from hybridmarl.search import run_player_battles
 
-        def play(a: str, b: str):
-            return run_player_battles(states, a, b, seed=cfg.seed, rules=rules, progress=cfg.progress)
-    else:
+            return run_player_battles(states, a, b, seed=seed, rules=rules, progress=cfg.progress)
+        if engine == "native":
+            from hybridmarl.engine import native
 
-        def play(a: str, b: str):
-            if engine == "native":
-                from hybridmarl.engine import native
+            return native.run_battles(states, a, b, seed=seed, rules=rules, progress=cfg.progress)
+        from hybridmarl.engine.battle import run_battles
 
-                return native.run_battles(states, a, b, seed=cfg.seed, rules=rules, progress=cfg.progress)
-            return run_battles(states, a, b, seed=cfg.seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)
+        return run_battles(states, a, b, seed=seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)
 
     if setting.name != "sparcraft":
         label += f", {setting.name} setting"
-    results = [play(cfg.p0, cfg.p1)]
-    if cfg.swap:
-        results.append(play(cfg.p1, cfg.p0))
-    _print_table(label, results)
+    directions = [(cfg.p0, cfg.p1)] + ([(cfg.p1, cfg.p0)] if cfg.swap else [])
+    chunks = (n + chunk - 1) // chunk
+    with contextlib.ExitStack() as stack:
+        out = stack.enter_context(atomic_write(cfg.out)) if cfg.out else None
+        tallies = []
+        for i, (a, b) in enumerate(directions):
+            tally = _Tally()
+            if out is not None:
+                out.write(', "swapped": {"results": [' if i == 1 else '{"results": [')
+            for k in range(chunks):
+                states, seed = chunk_states(k)
+                res = play(a, b, states, seed)
+                tally.add(res)
+                if out is not None:
+                    rows = res.to_document()["results"]
+                    out.write(("," if k else "") + ",".join(json.dumps(r, sort_keys=True) for r in rows))
+            if out is not None:
+                out.write('], "summary": ' + json.dumps(tally.summary(), sort_keys=True) + ("}" if i == 1 else ""))
+            tallies.append(tally)
+        if out is not None:
+            out.write(', "setting": ' + json.dumps(setting.name) + "}\n")
+        _print_table(label, tallies)
     if cfg.out:
-        doc = results[0].to_document()
-        if cfg.swap:
-            doc["swapped"] = results[1].to_document()
-        doc["setting"] = setting.name
-        write_json_atomic(cfg.out, doc, indent=None)
         print(f"results written to {cfg.out}")
     return 0
+
+
+def _units_before_loading(cfg: BattleConfig) -> int | None:
+    """Units per battle of a named scenario (m<A>v<B>) or a scenario file, read without the
+    engine; None where that takes the full loader (which checks everything again)."""
+    import re
+
+    if cfg.scenario_file:
+        from hybridmarl.io import read_user_json
+
+        try:
+            doc = read_user_json(cfg.scenario_file, "scenario file")
+            sides = [doc["player0"]] + ([] if doc.get("kind") in ("separated", "symmetric") else [doc["player1"]])
+            counts = [sum(int(e["count"]) for e in side) for side in sides]
+        except Exception:
+            return None
+        if max(counts) > 512:  # more than engine.scenarios.MAX_UNITS_PER_SIDE: the loader says so
+            return None
+        return sum(counts) * (2 if len(sides) == 1 else 1)
+    m = re.fullmatch(r"m(\d+)v(\d+)(-apart)?", (cfg.scenario or "").strip().lower())
+    return int(m.group(1)) + int(m.group(2)) if m else None
+
+
+class _Tally:
+    """The summary of a battle series, summed chunk by chunk (``BattleResults.summary``'s keys)."""
+
+    def __init__(self) -> None:
+        self.p0 = self.p1 = ""
+        self.battles = self.p0_wins = self.p1_wins = self.draws = 0
+        self.time_sum = self.turns_sum = 0
+
+    def add(self, res: Any) -> None:
+        self.p0, self.p1 = res.p0, res.p1
+        w = np.asarray(res.winner)
+        self.battles += len(w)
+        self.p0_wins += int((w == 0).sum())
+        self.p1_wins += int((w == 1).sum())
+        self.draws += int((w == -1).sum())
+        self.time_sum += int(np.asarray(res.final_time, np.int64).sum())
+        self.turns_sum += int(np.asarray(res.turns, np.int64).sum())
+
+    def summary(self) -> dict[str, Any]:
+        n = max(self.battles, 1)
+        return {
+            "battles": self.battles, "p0": self.p0, "p1": self.p1,
+            "p0_wins": self.p0_wins, "p1_wins": self.p1_wins, "draws": self.draws,
+            "p0_win_rate": self.p0_wins / n, "p1_win_rate": self.p1_wins / n, "draw_rate": self.draws / n,
+            "mean_final_time": self.time_sum / n if self.battles else 0.0,
+            "mean_turns": self.turns_sum / n if self.battles else 0.0,
+        }
 
 
 def resolve_engine(name: str) -> str:
@@ -252,6 +398,16 @@ def _print_table(label: str, results) -> None:
 
 def run_trace(cfg: TraceConfig) -> int:
     """Print the trace of one battle; raises ``InputError`` (a ``UserError``) on bad input."""
+    from hybridmarl.errors import UserError
+    from hybridmarl.validate import COUNT_OR_ZERO, SEED, check_values
+
+    check_values({"index": cfg.index, "seed": cfg.seed}, {"index": COUNT_OR_ZERO, "seed": SEED})
+    if not cfg.states and cfg.index > MAX_TRACE_INDEX:
+        raise UserError(
+            f"--index {cfg.index}: a named scenario's states are drawn in sequence, so --index is at most "
+            f"{MAX_TRACE_INDEX}; use another --seed, or write the state to a --states file"
+        )
+
     from hybridmarl.engine.scenarios import InputError, load_states_file, named_scenario
     from hybridmarl.engine.scripts import canonical_name
     from hybridmarl.engine.state import build_state

@@ -54,26 +54,29 @@ def train_command(args: list[str]) -> int:
 
     default_preset: str = getattr(algos, "DEFAULT_PRESET", "quick")
     pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--algo", default="hybrid")
+    pre.add_argument("--algo", default=None)
     pre.add_argument("--preset", default=None)
     pre.add_argument("--env", default="combat")
     pre.add_argument("--run-dir", "--run_dir", dest="run_dir", default=None)
     pre.add_argument("--resume", action="store_true")
     known, rest = pre.parse_known_args(args)
-    mod = algos.algo_module(known.algo)
+    # --resume with a run directory and no preset: start from the run's own (validated) config.
+    doc = None
+    if known.resume and known.preset is None and known.run_dir and (Path(known.run_dir) / "config.json").exists():
+        from hybridmarl.training.rundir import read_run_config
+
+        doc = read_run_config(known.run_dir)
+    mod = algos.algo_module(known.algo or (doc["algo"] if doc else "hybrid"))
     env = canonical_env(known.env)
-    # --resume with a run directory and no preset: start from the run's own config.
-    saved = Path(known.run_dir) / "config.json" if known.run_dir else None
-    if known.resume and known.preset is None and saved is not None and saved.is_file():
-        doc = json.loads(saved.read_text())
-        if doc.get("algo") != mod.ALGO:
-            raise UserError(f"{known.run_dir} is a {doc.get('algo')!r} run, not {mod.ALGO!r}")
+    if doc is not None:
+        if doc["algo"] != mod.ALGO:
+            raise UserError(f"{known.run_dir} is a {doc['algo']!r} run, not {mod.ALGO!r}")
         default = config_from_dict(type(mod.PRESETS[default_preset](env)), doc["config"])
         env = default.env
     else:
         preset = known.preset or default_preset
         if preset not in mod.PRESETS:
-            raise UserError(f"unknown preset {preset!r} for --algo {known.algo} (known: {', '.join(mod.PRESETS)})")
+            raise UserError(f"unknown preset {preset!r} for --algo {known.algo or mod.ALGO} (known: {', '.join(mod.PRESETS)})")
         default = mod.PRESETS[preset](env)
     cls = type(default)
     extra = ["--env", env]
@@ -159,6 +162,7 @@ def apply_setting(spec: Any, setting: str | None, *, p_arrive: float | None = No
 def run_eval(cfg: EvalConfig) -> int:
     """Evaluate what ``cfg`` names and print the result (or one JSON object); raises
     ``UserError`` on bad input."""
+    from hybridmarl.io import check_output_path
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.task import (
         TaskSpec,
@@ -167,9 +171,11 @@ def run_eval(cfg: EvalConfig) -> int:
         default_enemy,
         make_task,
     )
+    from hybridmarl.validate import COUNT, PROBABILITY, SEED, check_values, optional
 
-    if cfg.n < 1:
-        raise UserError("--n must be at least 1")
+    check_values({"n": cfg.n, "seed": cfg.seed, "p_arrive": cfg.p_arrive}, {"n": COUNT, "seed": SEED, "p_arrive": optional(PROBABILITY)})
+    if cfg.out:
+        check_output_path(cfg.out)
     if (cfg.run_dir is None) == (cfg.script is None):
         raise UserError("give exactly one of --run-dir (a trained policy) or --script")
     if cfg.script is not None and cfg.enemy_run_dir and E.is_search_spec(cfg.script):
@@ -313,7 +319,7 @@ def run_demos_info(cfg: DemosInfoConfig) -> int:
     a = ds.arrays
     summary = {
         "path": cfg.path,
-        **{k: ds.meta[k] for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
+        **{k: ds.meta.get(k) for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
         "observations": ds.size,
         "episodes": int(a["episode"].max()) + 1,
         "agent_decisions": int((a["legal"].sum(-1) >= 2).sum()),
@@ -325,13 +331,18 @@ def run_demos_info(cfg: DemosInfoConfig) -> int:
 
 def run_demos_collect(cfg: DemosCollectConfig) -> int:
     """Record the demonstrations ``cfg`` describes; raises ``UserError`` on bad input."""
+    from hybridmarl.io import check_output_path
     from hybridmarl.training import demos as D
     from hybridmarl.training.task import TaskSpec, canonical_env, canonical_script, default_enemy
+    from hybridmarl.validate import COUNT, DISCOUNT, PROBABILITY, SEED, check_values, optional
 
+    check_values(
+        {"n": cfg.n, "seed": cfg.seed, "num_envs": cfg.num_envs, "gamma": cfg.gamma, "p_arrive": cfg.p_arrive, "max_turns": cfg.max_turns},
+        {"n": COUNT, "seed": SEED, "num_envs": COUNT, "gamma": DISCOUNT, "p_arrive": optional(PROBABILITY), "max_turns": COUNT},
+    )
+    check_output_path(cfg.out)
     env = canonical_env(cfg.env)
     demo = canonical_script(env, cfg.demonstrator)
-    if cfg.n < 1:
-        raise UserError("--n must be at least 1")
     if env == "combat":
         enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
         spec = TaskSpec(env=env, scenario=cfg.scenario, enemy=enemy, max_turns=cfg.max_turns)

@@ -6,7 +6,8 @@ is generated from it. A handler takes the remaining arguments, parses them itsel
 returns an exit code (``None`` means 0). Bad input raises :class:`~hybridmarl.errors.UserError`
 (``hybridmarl: error: <message>`` on stderr, exit code 2; no output file is left); a training
 run whose losses became NaN/inf raises :class:`~hybridmarl.errors.TrainingDiverged`
-(``hybridmarl: training stopped: <message>``, exit code 3). A missing optional package becomes a
+(``hybridmarl: training stopped: <message>``, exit code 3). Ctrl-C exits with code 130 (a
+training run stops at the end of its chunk and saves a checkpoint first). A missing optional package becomes a
 :class:`~hybridmarl.errors.UserError` naming the extra to install
 (:func:`hybridmarl.cli.extras.optional_extras`).
 
@@ -21,7 +22,14 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from hybridmarl.errors import EXIT_BAD_INPUT, EXIT_DIVERGED, TrainingDiverged, UserError
+from hybridmarl.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_DIVERGED,
+    EXIT_INTERRUPTED,
+    Interrupted,
+    TrainingDiverged,
+    UserError,
+)
 
 #: A command handler: the arguments after the command name -> exit code (None: 0).
 Handler = Callable[[list[str]], "int | None"]
@@ -118,6 +126,12 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingDiverged as e:
         print(f"hybridmarl: training stopped: {_one_line(e)}", file=sys.stderr)
         return EXIT_DIVERGED
+    except Interrupted as e:
+        print(f"hybridmarl: {_one_line(e)}", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except KeyboardInterrupt:
+        print("hybridmarl: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0 if rc is None else int(rc)
 
 

@@ -124,14 +124,11 @@ def check_run_dir(run_dir: Path, config: Any) -> None:
     """Refuse (:class:`UserError`) a run directory whose run was made by another learner or with
     other settings than ``config``."""
     from hybridmarl.training.config import config_to_dict
+    from hybridmarl.training.rundir import read_run_config
 
-    path = run_dir / "config.json"
-    if not path.is_file():
+    if not (run_dir / "config.json").exists():
         return
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, ValueError) as e:
-        raise UserError(f"{path}: unreadable ({e})") from None
+    doc = read_run_config(run_dir)
     if doc.get("algo") != ALGO:
         raise UserError(f"{run_dir} holds a {doc.get('algo')!r} run, not a {ALGO!r} run: choose another --run-dir")
     diff = settings_mismatch(doc.get("config", {}), config_to_dict(config))
@@ -172,11 +169,14 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
     from hybridmarl.training.task import TaskSpec, canonical_script, default_enemy, make_task
+    from hybridmarl.validate import COUNT, SEED, check_values, optional
 
+    check_values(
+        {"n": cfg.n, "seed": cfg.seed, "replay_seed": cfg.replay_seed, "total_episodes": cfg.total_episodes},
+        {"n": COUNT, "seed": SEED, "replay_seed": SEED, "total_episodes": optional(COUNT)},
+    )
     demo = canonical_script("combat", cfg.demonstrator)
     enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
-    if cfg.n < 1:
-        raise UserError("--n must be at least 1")
     setting = get_setting(cfg.setting).name
     make_task(TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy, setting=setting))  # validates the scenario
     run_dir = Path(cfg.run_dir) if cfg.run_dir else default_run_dir(cfg.scenario, demo, cfg.seed, cfg.preset, setting)

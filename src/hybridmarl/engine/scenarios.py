@@ -22,7 +22,6 @@ scenario file (``load_scenario_file``).
 
 from __future__ import annotations
 
-import json
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -103,10 +102,10 @@ def validate_units(
 def parse_states_document(doc: Any, *, walkable: np.ndarray | None = None) -> list[list[UnitSpec]]:
     """Validate ``{"states": [{"units": [...]}, ...]}``."""
     if not isinstance(doc, dict) or "states" not in doc:
-        raise InputError("states file: top level must be an object with a 'states' list")
+        raise InputError("the top level must be an object with a 'states' list")
     states = doc["states"]
     if not isinstance(states, list) or not states:
-        raise InputError("states file: 'states' must be a non-empty list")
+        raise InputError("'states' must be a non-empty list")
     out = []
     for i, s in enumerate(states):
         if not isinstance(s, dict) or "units" not in s:
@@ -117,18 +116,14 @@ def parse_states_document(doc: Any, *, walkable: np.ndarray | None = None) -> li
 
 def load_states_file(path: str | Path, *, walkable: np.ndarray | None = None) -> list[list[UnitSpec]]:
     """Read and validate a states JSON file; any problem raises ``InputError`` with one line."""
+    from hybridmarl.io import read_user_json
+
     p = Path(path)
+    doc = read_user_json(p, "states file", InputError)
     try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise InputError(f"states file {str(p)!r} not found") from None
-    except OSError as e:
-        raise InputError(f"states file {str(p)!r}: cannot read ({e.strerror})") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise InputError(f"states file {str(p)!r}: malformed JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
-    return parse_states_document(doc, walkable=walkable)
+        return parse_states_document(doc, walkable=walkable)
+    except InputError as e:
+        raise InputError(f"states file {str(p)!r}: {e}") from None
 
 
 def states_to_document(states: Sequence[Sequence[UnitSpec]]) -> dict:
@@ -445,10 +440,18 @@ def named_scenario(name: str, setting: Any = None) -> Scenario:
     )
 
 
-def _pair(v: Any, what: str) -> tuple[int, int]:
+def _pair(v: Any, what: str, *, low: int | None = None) -> tuple[int, int]:
     if not (isinstance(v, list) and len(v) == 2 and all(isinstance(c, int) and not isinstance(c, bool) for c in v)):
-        raise InputError(f"scenario file: {what} must be [x, y] integers")
+        raise InputError(f"scenario file: {what} must be [x, y] integers, got {v!r}")
+    if low is not None and min(v) < low:
+        raise InputError(f"scenario file: {what} must be at least {low} in x and y, got {v!r}")
     return (int(v[0]), int(v[1]))
+
+
+def _radius(v: Any, what: str) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise InputError(f"scenario file: {what} must be an integer number of pixels, at least 0, got {v!r}")
+    return v
 
 
 def _side(v: Any, what: str) -> tuple[tuple[str, int], ...]:
@@ -458,7 +461,7 @@ def _side(v: Any, what: str) -> tuple[tuple[str, int], ...]:
     for i, e in enumerate(v):
         if not isinstance(e, dict) or "type" not in e or "count" not in e:
             raise InputError(f"scenario file: {what}[{i}] must be {{\"type\": ..., \"count\": ...}}")
-        if e["type"] not in U.TYPE_INDEX:
+        if not isinstance(e["type"], str) or e["type"] not in U.TYPE_INDEX:
             raise InputError(f"scenario file: {what}[{i}]: unknown unit type {e['type']!r} (known: {', '.join(U.TYPE_NAMES)})")
         c = e["count"]
         if isinstance(c, bool) or not isinstance(c, int) or c < 1:
@@ -480,15 +483,26 @@ def load_scenario_file(path: str | Path) -> Scenario:
          "radius0": 100, "radius1": 100,                  # disks
          "spread": [128, 128]}                            # separated / symmetric
     """
+    from hybridmarl.io import read_user_json
+
     p = Path(path)
+    doc = read_user_json(p, "scenario file", InputError)
     try:
-        doc = json.loads(p.read_text())
-    except FileNotFoundError:
-        raise InputError(f"scenario file {str(p)!r} not found") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"scenario file {str(p)!r}: malformed JSON at line {e.lineno}: {e.msg}") from None
-    if not isinstance(doc, dict):
-        raise InputError("scenario file: top level must be an object")
+        return _scenario_from_document(doc, p.stem)
+    except InputError as e:
+        raise InputError(f"scenario file {str(p)!r}: {str(e).removeprefix('scenario file: ')}") from None
+
+
+#: The keys of a scenario file (any other is a typo, refused rather than ignored).
+SCENARIO_KEYS = ("name", "description", "kind", "player0", "player1", "center0", "center1", "radius0", "radius1", "spread")
+
+
+def _scenario_from_document(doc: dict[str, Any], stem: str) -> Scenario:
+    unknown = sorted(set(doc) - set(SCENARIO_KEYS))
+    if unknown:
+        raise InputError(f"unknown key {unknown[0]!r} (known: {', '.join(SCENARIO_KEYS)})")
+    if not isinstance(doc.get("name", ""), str):
+        raise InputError(f"name must be a string, got {doc['name']!r}")
     kind = doc.get("kind", "disks")
     if kind not in ("disks", "separated", "symmetric"):
         raise InputError(f"scenario file: kind must be disks, separated or symmetric, got {kind!r}")
@@ -496,15 +510,15 @@ def load_scenario_file(path: str | Path) -> Scenario:
     side1 = side0 if kind in ("separated", "symmetric") else _side(doc.get("player1"), "player1")
     base = named_scenario("m1v1")
     sc = Scenario(
-        name=str(doc.get("name", p.stem)),
+        name=str(doc.get("name", stem)),
         side0=side0,
         side1=side1,
         kind=kind,
         center0=_pair(doc["center0"], "center0") if "center0" in doc else base.center0,
         center1=_pair(doc["center1"], "center1") if "center1" in doc else base.center1,
-        radius0=int(doc.get("radius0", base.radius0)),
-        radius1=int(doc.get("radius1", doc.get("radius0", base.radius1))),
-        spread=_pair(doc["spread"], "spread") if "spread" in doc else (128, 128),
+        radius0=_radius(doc.get("radius0", base.radius0), "radius0"),
+        radius1=_radius(doc.get("radius1", doc.get("radius0", base.radius1)), "radius1"),
+        spread=_pair(doc["spread"], "spread", low=1) if "spread" in doc else (128, 128),
     )
     _check_fits(sc)
     return sc
@@ -517,9 +531,12 @@ def _check_fits(sc: Scenario) -> None:
         for c, r, who in ((sc.center0, sc.radius0, "player0"), (sc.center1, sc.radius1, "player1")):
             if r < 0 or c[0] - r < 0 or c[1] - r < 0 or c[0] + r >= w or c[1] + r >= h:
                 raise InputError(f"scenario file: {who}'s disk (centre {c}, radius {r}) leaves the {w}x{h} map")
-    elif sc.kind == "separated":
-        for c in (sc.center0, sc.center1):
-            if c[0] - sc.spread[0] < 0 or c[1] - sc.spread[1] < 0 or c[0] + sc.spread[0] > w or c[1] + sc.spread[1] > h:
+    else:
+        # Offsets are uniform in [-spread, spread - 1], and mirrored: units land within
+        # [c - spread, c + spread] of their centre.
+        centres = (sc.center0, sc.center1) if sc.kind == "separated" else (SYMMETRIC_CENTER,)
+        for c in centres:
+            if c[0] - sc.spread[0] < 0 or c[1] - sc.spread[1] < 0 or c[0] + sc.spread[0] >= w or c[1] + sc.spread[1] >= h:
                 raise InputError(f"scenario file: spread {sc.spread} around {c} leaves the {w}x{h} map")
 
 

@@ -110,10 +110,11 @@ def parse_ascii_map(text: str) -> np.ndarray:
         raise ValueError(f"map file: width and height must be positive, got {width}x{height}")
     if len(rows) != height:
         raise ValueError(f"map file: expected {height} rows of tiles, found {len(rows)}")
-    grid = np.zeros((height, width), dtype=bool)
-    for r, row in enumerate(rows):
+    for r, row in enumerate(rows):  # before allocating: a mistyped width must not allocate it
         if len(row) < width or any(c not in "01" for c in row[:width]):
             raise ValueError(f"map file: row {r} must have {width} characters of 0/1")
+    grid = np.zeros((height, width), dtype=bool)
+    for r, row in enumerate(rows):
         grid[r] = [c == "1" for c in row[:width]]
     return grid
 

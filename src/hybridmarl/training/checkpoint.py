@@ -47,6 +47,34 @@ class CheckpointError(UserError):
     """A missing or unreadable checkpoint (one-line message)."""
 
 
+#: Environment variable naming a point where a training process pauses (for tests that kill
+#: or interrupt it there): ``chunk:N`` (inside the N-th chunk of the training loop, before it is
+#: logged), ``checkpoint:N`` (inside the N-th checkpoint write, before the rename),
+#: ``evaluation`` (before the final evaluation).
+PAUSE_ENV = "HYBRIDMARL_PAUSE_AT"
+_reached: dict[str, int] = {}
+
+
+def pause_point(point: str, resume: Any = None) -> None:
+    """Pause here if :data:`PAUSE_ENV` names this point (and this is its N-th time): say so on
+    stderr, then wait until ``resume()`` is true (e.g. a Ctrl-C was received) or forever."""
+    wanted = os.environ.get(PAUSE_ENV)
+    if not wanted:
+        return
+    name, _, nth = wanted.partition(":")
+    if name != point:
+        return
+    _reached[point] = _reached.get(point, 0) + 1
+    if _reached[point] != int(nth or 1):
+        return
+    import sys
+    import time
+
+    print(f"hybridmarl: paused at {wanted}", file=sys.stderr, flush=True)
+    while resume is None or not resume():
+        time.sleep(0.05)
+
+
 def _contiguous(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     out = {}
     for k, v in arrays.items():
@@ -77,6 +105,7 @@ def save_checkpoint(
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp_{final.name}_", dir=root))
     try:
         save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
+        pause_point("checkpoint")
         doc = dict(meta)
         doc["format_version"] = FORMAT_VERSION
         doc["step"] = int(step)
@@ -143,21 +172,26 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
 
 
 def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-    """``(arrays, meta)`` of one checkpoint directory."""
+    """``(arrays, meta)`` of one checkpoint directory; :class:`CheckpointError` (one line naming
+    the file) for a missing, unreadable or malformed file."""
+    from hybridmarl.io import check_user_file, read_user_json
+
     path = Path(path)
+    meta = read_user_json(path / "meta.json", "checkpoint metadata", CheckpointError)
+    arrays_path = check_user_file(path / "arrays.safetensors", "checkpoint arrays", CheckpointError)
     try:
-        with open(path / "meta.json") as f:
-            meta = json.load(f)
-        arrays = load_file(str(path / "arrays.safetensors"))
-    except FileNotFoundError as e:
-        raise CheckpointError(f"checkpoint {path}: missing {Path(e.filename).name}") from None
-    except (json.JSONDecodeError, OSError, ValueError) as e:
-        raise CheckpointError(f"checkpoint {path}: unreadable ({e})") from None
+        arrays = load_file(str(arrays_path))
+    except Exception as e:  # safetensors raises its own error type for a malformed file
+        raise CheckpointError(f"checkpoint arrays {str(arrays_path)!r}: unreadable ({_one_line(e)})") from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise CheckpointError(
             f"checkpoint {path}: format version {meta.get('format_version')!r}, expected {FORMAT_VERSION}"
         )
     return arrays, meta
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split())[:200] or type(e).__name__
 
 
 def subtree(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:

@@ -222,9 +222,13 @@ class TrainConfig:
         path = Path(self.demonstrator)
         if not path.is_file():
             raise TaskError(f"{path}: no such dataset file")
-        from hybridmarl.training.demos import peek_meta
+        from hybridmarl.training.demos import load_dataset, peek_meta
 
-        return str(peek_meta(path).get("demonstrator", ""))
+        name = peek_meta(path).get("demonstrator")
+        if not isinstance(name, str) or not name:
+            load_dataset(path)  # names the file's problem
+            raise TaskError(f"{path}: the dataset does not name its demonstrator")
+        return name
 
     def demonstrator_name(self) -> str:
         """The script name (canonical), or 'dataset:<file name>'."""
@@ -301,15 +305,15 @@ def _all_finite(tree: Any) -> jax.Array:
 
 
 def check_finite(what: str, value: Any, where: str) -> None:
-    """Raise :class:`TrainingDiverged` if ``value`` (a number or a pytree of arrays) has NaN/inf."""
+    """Raise :class:`TrainingDiverged` if ``value`` (a number or a pytree of arrays) has NaN/inf
+    (``training.run.Run`` adds to the message what checkpoint is left to resume from)."""
     if isinstance(value, int | float | np.floating | np.integer):
         ok = math.isfinite(float(value))
     else:
         ok = bool(_all_finite(value))
     if not ok:
         raise TrainingDiverged(
-            f"{what} became NaN/inf at {where}; lower the learning rate or check the inputs "
-            "(the last checkpoint is still valid: fix the cause and --resume)"
+            f"{what} became NaN/inf at {where}; lower the learning rate or check the inputs"
         )
 
 

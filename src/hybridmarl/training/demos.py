@@ -197,9 +197,12 @@ def load_dataset(path: str | Path, *, expect: Task | None = None) -> Dataset:
     """Read and validate a dataset (see the module docstring). ``expect``: the task it must fit."""
     from safetensors import safe_open
 
+    from hybridmarl.io import check_user_file
+
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise DatasetError(f"{path}: no such dataset file")
+    check_user_file(path, "dataset file", DatasetError)
     try:
         with safe_open(str(path), framework="numpy") as f:
             header = f.metadata() or {}
@@ -227,6 +230,12 @@ def validate(ds: Dataset, *, expect: Task | None = None) -> str | None:
     for key in ("task", "num_agents", "num_actions", "obs_dim", "demonstrator"):
         if key not in meta:
             return f"metadata lacks {key!r}"
+    for key in ("num_agents", "num_actions", "obs_dim"):
+        v = meta[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            return f"metadata {key} must be a positive integer, got {v!r}"
+    if not isinstance(meta["task"], dict) or not isinstance(meta["demonstrator"], str):
+        return "metadata 'task' must be an object and 'demonstrator' a string"
     for name, (dtype, ndim) in CORE.items():
         if name not in a:
             return f"missing array {name!r}"

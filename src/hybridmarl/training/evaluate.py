@@ -16,7 +16,6 @@
 from __future__ import annotations
 
 import functools
-import json
 from pathlib import Path
 from typing import Any
 
@@ -176,11 +175,10 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, weight
     one. Raises 'CheckpointError' (a 'UserError') for a missing or unreadable run."""
     if weights not in POLICY_CHOICES:
         raise CheckpointError(f"weights must be one of {', '.join(POLICY_CHOICES)}, not {weights!r}")
+    from hybridmarl.training.rundir import non_finite_array, read_run_config
+
     run_dir = Path(run_dir)
-    cfg_path = run_dir / "config.json"
-    if not cfg_path.is_file():
-        raise CheckpointError(f"{run_dir}: no config.json (not a hybridmarl run directory)")
-    doc = json.loads(cfg_path.read_text())
+    doc = read_run_config(run_dir)
     ck = find_checkpoint(run_dir, checkpoint)
     arrays, meta = load_checkpoint(ck)
     spec = TaskSpec.from_dict(doc["task"])
@@ -193,6 +191,9 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, weight
     if weights == "average" and not has_average:
         raise CheckpointError(f"{ck}: holds no weight average (the run was trained without --actor-average-from, or before its first average)")
     prefix = AVERAGE_PREFIX if has_average and weights != "last" else "actor"
+    bad = non_finite_array(arrays, (prefix,))
+    if bad is not None:
+        raise CheckpointError(f"{ck}: array {bad!r} holds NaN/inf (the run diverged); evaluate an earlier --checkpoint")
     try:
         variables = {
             "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),

@@ -9,49 +9,85 @@ Under the run directory:
 - ``tb/``: TensorBoard event files (the same scalars, plus the config as text);
 - ``curve.png``: the training curve (``training.plots``).
 
-On ``--resume`` the CSV rows written after the checkpoint are dropped, so the files read as if
-the run had never stopped. The progress display is a rich progress bar on a terminal and a
+On ``--resume`` the CSV rows written after the checkpoint are dropped (each checkpoint records
+how many rows every log had), so the files read as if the run had never stopped; a run that
+starts from scratch in a directory with old logs starts them afresh. The progress display is a rich progress bar on a terminal and a
 plain status line every few seconds otherwise (log files, CI).
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-from hybridmarl.io import write_json_atomic
+from hybridmarl.errors import UserError
+from hybridmarl.io import write_json_atomic, write_text_atomic
+
+
+class LogFileError(UserError):
+    """A run's CSV log that cannot be read back (on --resume): one line naming the file."""
 
 
 class CsvLog:
-    """Append-only CSV with a header fixed by the first row written."""
+    """Append-only CSV with a header fixed by the first row written. ``rows`` counts its data
+    rows, so a checkpoint can record where each log stood (``RunLogger.row_counts``)."""
 
     def __init__(self, path: Path, step_key: str) -> None:
         self.path = path
         self.step_key = step_key
         self.fields: list[str] | None = None
+        self.rows = 0
         if path.exists():
-            with open(path, newline="") as f:
-                reader = csv.reader(f)
-                header = next(reader, None)
+            header, rows = self._read()
             self.fields = header or None
+            self.rows = len(rows)
 
-    def truncate_after(self, step: float) -> None:
-        """Drop rows whose ``step_key`` is greater than ``step`` (resume)."""
+    def _read(self) -> tuple[list[str], list[list[str]]]:
+        from hybridmarl.io import read_user_bytes
+
+        data = read_user_bytes(self.path, "run log", LogFileError)
+        if b"\0" in data:
+            raise LogFileError(f"run log {str(self.path)!r} is a binary file, not CSV (remove it to start a new log)")
+        try:
+            table = list(csv.reader(io.StringIO(data.decode("utf-8"), newline="")))
+        except (UnicodeDecodeError, csv.Error) as e:
+            raise LogFileError(f"run log {str(self.path)!r} is not a CSV file ({e}; remove it to start a new log)") from None
+        return (table[0], table[1:]) if table else ([], [])
+
+    def truncate_to(self, rows: int | None, step: float) -> None:
+        """Keep the first ``rows`` data rows (what a checkpoint recorded), or, for a checkpoint
+        that recorded none, the rows whose ``step_key`` is at most ``step``; rewritten atomically."""
         if not self.path.exists():
             return
-        with open(self.path, newline="") as f:
-            rows = list(csv.DictReader(f))
-        keep = [r for r in rows if float(r.get(self.step_key, "0") or 0) <= step]
-        if self.fields is None:
-            return
-        with open(self.path, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=self.fields)
-            w.writeheader()
+        header, table = self._read()
+        if rows is not None:
+            if len(table) < rows:
+                raise LogFileError(
+                    f"run log {str(self.path)!r} has {len(table)} rows but the checkpoint was saved after {rows}: "
+                    "the log was cut short (restore it, or remove it to start a new log)"
+                )
+            keep = table[:rows]
+        else:
+            col = header.index(self.step_key) if self.step_key in header else None
+            keep = [r for r in table if col is None or col >= len(r) or _number(r[col]) <= step]
+        self.fields = header or None
+        self.rows = len(keep)
+        text = io.StringIO(newline="")
+        if header:
+            w = csv.writer(text)
+            w.writerow(header)
             w.writerows(keep)
+        write_text_atomic(self.path, text.getvalue())
+
+    def reset(self) -> None:
+        """Start the log afresh (a run that starts from scratch in a directory that has one)."""
+        self.path.unlink(missing_ok=True)
+        self.fields, self.rows = None, 0
 
     def write(self, rows: list[dict[str, Any]]) -> None:
         if not rows:
@@ -65,6 +101,14 @@ class CsvLog:
                 w.writeheader()
             for r in rows:
                 w.writerow({k: _fmt(v) for k, v in r.items()})
+        self.rows += len(rows)
+
+
+def _number(text: str) -> float:
+    try:
+        return float(text or 0)
+    except ValueError:
+        return 0.0
 
 
 def _fmt(v: Any) -> Any:
@@ -99,10 +143,22 @@ class RunLogger:
             for k, v in _flat(doc.get("config", {})).items():
                 self.tb.add_text(f"hparams/{k}", str(v), 0)
 
-    def resume_at(self, episodes: int) -> None:
-        self.train.truncate_after(episodes)
-        self.episodes.truncate_after(episodes)
-        self.evals.truncate_after(episodes)
+    def logs(self) -> dict[str, CsvLog]:
+        return {"train": self.train, "episodes": self.episodes, "evals": self.evals}
+
+    def row_counts(self) -> dict[str, int]:
+        """Data rows of each CSV log (a checkpoint records them; ``resume_at`` cuts back to them)."""
+        return {name: log.rows for name, log in self.logs().items()}
+
+    def resume_at(self, episodes: int, rows: dict[str, int] | None = None) -> None:
+        """Cut every CSV log back to where the checkpoint left it: its recorded ``rows``, or for
+        a checkpoint without them, the rows up to ``episodes``."""
+        for name, log in self.logs().items():
+            log.truncate_to(None if rows is None else int(rows.get(name, 0)), episodes)
+
+    def reset(self) -> None:
+        for log in self.logs().values():
+            log.reset()
 
     def scalars(self, step: int, values: dict[str, Any], prefix: str = "train") -> None:
         if self.tb is None:
@@ -115,6 +171,7 @@ class RunLogger:
         if self.tb is not None:
             self.tb.flush()
             self.tb.close()
+            self.tb = None
 
 
 def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:

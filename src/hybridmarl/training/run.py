@@ -18,7 +18,13 @@ as its method, and calls 'Run' for everything around it.
                                           # eval.json, the curve, the result lines
 
 A loss or parameter that becomes NaN/inf raises 'TrainingDiverged' (from 'check_finite'); the
-run then closes its logs and the exception propagates (the last checkpoint stays valid).
+run then closes its logs and the exception propagates, its message saying whether a checkpoint
+from before the divergence exists to --resume from.
+
+Before any work, 'Run' checks every number of the config ('hybridmarl.validate'), takes the
+run directory's lock ('training.rundir.RunLock'), removes what killed writes left behind, and
+on --resume refuses a directory that is not a run, a checkpoint that does not fit, and a config
+that changes how the run trains ('rundir.check_resume_config').
 """
 
 from __future__ import annotations
@@ -27,6 +33,9 @@ import contextlib
 import dataclasses
 import functools
 import json
+import signal
+import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -37,11 +46,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hybridmarl.errors import Interrupted, TrainingDiverged
 from hybridmarl.io import write_json_atomic
 from hybridmarl.settings import DEFAULT_SETTING
 from hybridmarl.training.checkpoint import (
+    CheckpointError,
     latest_checkpoint,
     load_checkpoint,
+    pause_point,
     prefixed,
     save_checkpoint,
     subtree,
@@ -57,6 +69,12 @@ from hybridmarl.training.config import (
     resolve_run_dir,
 )
 from hybridmarl.training.logger import Progress, RunLogger, recent_status
+from hybridmarl.training.rundir import (
+    RunLock,
+    check_resume_config,
+    non_finite_array,
+    remove_partial_writes,
+)
 from hybridmarl.training.task import TaskError, TaskSpec, flatten_named, make_task, unflatten_named
 
 
@@ -152,18 +170,45 @@ class Run:
     """Set-up, loop bookkeeping and the final evaluation of one training run (module docstring)."""
 
     def __init__(self, algo: str, cfg: TrainConfig, *, resumable: bool = True) -> None:
-        self.algo, self.cfg = algo, cfg
+        from hybridmarl.validate import check_config
+
+        self.algo, self.cfg, self.resumable = algo, cfg, resumable
+        check_config(cfg)  # every number, before any work
         self.clock = RunClock()
         self.spec = cfg.task_spec()
         self.task = make_task(self.spec)
         self.run_dir = resolve_run_dir(algo, cfg)
+        if cfg.resume and not (self.run_dir / "config.json").is_file() and latest_checkpoint(self.run_dir) is None:
+            what = "no such run directory" if not self.run_dir.exists() else "not a run directory (no config.json)"
+            raise CheckpointError(f"--resume: {self.run_dir}: {what}; drop --resume to start a new run there")
+        self.lock = RunLock(self.run_dir)
+        self.lock.acquire()
+        try:
+            self._open(cfg)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def _open(self, cfg: TrainConfig) -> None:
+        freed = remove_partial_writes(self.run_dir)
+        if freed:
+            print(f"{self.run_dir}: removed {freed / 2**20:.1f} MiB of partial writes left by an interrupted run")
         self.checkpoint = latest_checkpoint(self.run_dir)
         if self.checkpoint is not None and not cfg.resume:
-            how = "pass --resume to continue it" if resumable else f"pass --resume ({algo} restarts from scratch)"
+            how = "pass --resume to continue it" if self.resumable else f"pass --resume ({self.algo} restarts from scratch)"
             raise TaskError(f"{self.run_dir} already holds checkpoints: {how}, or choose another --run-dir")
-        if self.checkpoint is not None:
+        self._meta: dict[str, Any] = {}
+        if self.checkpoint is not None and self.resumable:
             check_same_setting(self.checkpoint, self.spec)
+            self._arrays, self._meta = load_checkpoint(self.checkpoint)
+            check_resume_config(self.checkpoint, self._meta.get("config"), config_to_dict(cfg))
+        elif self.checkpoint is not None:
+            self.checkpoint = None  # a learner that restarts from scratch
+        elif cfg.resume and self.resumable:
+            print(f"{self.run_dir} holds no checkpoint yet: starting the run from the beginning")
         self.log = RunLogger(self.run_dir, tensorboard=cfg.tensorboard)
+        if self.checkpoint is None:
+            self.log.reset()  # a fresh start: no rows of an earlier attempt
         self.eval_task = self.task.against(cfg.eval_enemy_name())
         self.module: Any = None
         self.state: Any = None
@@ -176,6 +221,7 @@ class Run:
         self._t_chunk = 0.0
         self._next_ckpt = 0
         self._new: tuple[int, int, dict[str, np.ndarray]] = (0, 0, {})
+        self._interrupted = False
 
     # -- set-up -------------------------------------------------------------------------------------
 
@@ -183,9 +229,24 @@ class Run:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if exc_type is not None:  # TrainingDiverged, bad input, an interrupt: close the logs
+        try:
             self._close_progress()
             self.log.close()
+            if isinstance(exc, TrainingDiverged):
+                raise TrainingDiverged(f"{exc} {self._after_divergence()}") from None
+            if isinstance(exc, KeyboardInterrupt) and self.resumable:
+                ck = latest_checkpoint(self.run_dir)
+                where = f"{ck.name} ({self.run_dir})" if ck else "no checkpoint yet"
+                print(f"\ninterrupted; last checkpoint: {where}; continue with: hybridmarl train --run-dir {self.run_dir} --resume", file=sys.stderr)
+        finally:
+            self.lock.release()
+
+    def _after_divergence(self) -> str:
+        """What is left to continue from, for the message of a diverged run."""
+        ck = latest_checkpoint(self.run_dir) if self.resumable else None
+        if ck is None:
+            return "(no checkpoint was saved before it: fix the cause and start the run again)"
+        return f"(checkpoint {ck.name}, saved before it, is still valid: fix the cause and --resume)"
 
     def config_document(self, networks: dict[str, int] | None = None) -> dict[str, Any]:
         """config.json: the algo, the full config (flat), the task, network sizes, versions."""
@@ -209,11 +270,19 @@ class Run:
         self.config_doc = self.config_document(networks)
         self.periodic = PeriodicEval(self.cfg, self.run_dir, self.log, state.episodes)
         if self.checkpoint is not None:
-            arrays, meta = load_checkpoint(self.checkpoint)
-            state.restore(arrays, meta)
+            arrays, meta = self._arrays, self._meta
+            bad = non_finite_array(arrays, tuple(state.TREES))
+            if bad is not None:
+                raise CheckpointError(f"checkpoint {self.checkpoint}: array {bad!r} holds NaN/inf (the run diverged); resume from an earlier checkpoint")
+            try:
+                state.restore(arrays, meta)
+            except (KeyError, ValueError, TypeError) as e:
+                msg = str(e.args[0]) if e.args else type(e).__name__
+                raise CheckpointError(f"checkpoint {self.checkpoint} does not fit the run's config ({msg})") from None
             self.clock.resume(meta)
             self.periodic.resume(meta, state.episodes)
-            self.log.resume_at(state.episodes)
+            self.log.resume_at(state.episodes, meta.get("log_rows"))
+            del self._arrays
             print(f"resumed {self.run_dir} from {self.checkpoint.name} (phase {state.phase}, {state.episodes} episodes)")
         self.log.write_config(self.config_doc)
 
@@ -221,6 +290,7 @@ class Run:
         return {
             **self.state.meta(), **self.clock.elapsed(), **self.periodic.meta(),
             "algo": self.algo, "config": self.config_doc["config"], "task": self.spec.to_dict(),
+            "log_rows": self.log.row_counts(),
         }
 
     def save(self) -> None:
@@ -240,18 +310,37 @@ class Run:
         """The interaction phase: the progress display while it runs; the last checkpoint after."""
         self._progress = Progress(self.cfg.total_episodes, f"{self.algo} {self.spec.label()}", enabled=self.cfg.progress, start=self.state.episodes)
         self._next_ckpt = self._after(self.state.episodes)
-        yield
+        # Ctrl-C stops the loop at the end of the chunk (a consistent state), which is then saved.
+        handled = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, self._on_interrupt) if handled else None
+        try:
+            yield
+        finally:
+            if handled:
+                signal.signal(signal.SIGINT, previous)
         self._close_progress()
         self.save()
+        if self._interrupted:
+            raise Interrupted(
+                f"interrupted at {self.state.episodes} episodes, checkpoint saved; "
+                f"continue with: hybridmarl train --run-dir {self.run_dir} --resume"
+            )
+
+    def _on_interrupt(self, signum: int, frame: Any) -> None:
+        if self._interrupted:  # a second Ctrl-C: stop at once (the last checkpoint stays valid)
+            raise KeyboardInterrupt
+        self._interrupted = True
+        print("\nstopping at the end of this chunk to save a checkpoint (Ctrl-C again to stop at once)", file=sys.stderr, flush=True)
 
     def running(self) -> bool:
         """True while the episode budget lasts and the clock has not stopped the run; starts
         the timing of the next chunk."""
         self._t_chunk = time.time()
-        return not self.time_limited and self.state.episodes < self.cfg.total_episodes
+        return not self.time_limited and not self._interrupted and self.state.episodes < self.cfg.total_episodes
 
     def count(self, stats: dict[str, np.ndarray], env_steps: int) -> None:
         """Count a chunk: its finished episodes (per-episode metrics 'stats') and env steps."""
+        pause_point("chunk", lambda: self._interrupted)
         st = self.state
         n_new = int(next(iter(stats.values())).shape[0]) if stats else 0
         self._new = (st.episodes, n_new, stats)
@@ -317,6 +406,7 @@ class Run:
         from hybridmarl.training import plots
 
         st = self.state
+        pause_point("evaluation")
         result = self.evaluate(self._policy())
         result.update(before or {})
         result.update(enemy=self.eval_task.enemy, episodes=st.episodes, **counters, **self.clock.elapsed())
