@@ -21,6 +21,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import tyro
 
+from hybridmarl.engine.backend import resolve_engine
 from hybridmarl.io import atomic_write
 
 
@@ -360,16 +361,6 @@ class _Tally:
             "mean_final_time": self.time_sum / n if self.battles else 0.0,
             "mean_turns": self.turns_sum / n if self.battles else 0.0,
         }
-
-
-def resolve_engine(name: str) -> str:
-    """'native' or 'jax' for a --engine value: 'auto' is native when JAX's default device is a
-    CPU (the native backend is the faster one there) and jax otherwise."""
-    if name != "auto":
-        return name
-    import jax
-
-    return "native" if jax.default_backend() == "cpu" else "jax"
 
 
 def _print_table(label: str, results) -> None:
