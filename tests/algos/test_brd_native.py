@@ -160,3 +160,16 @@ def test_native_engine_refused_where_it_does_not_apply():
         resolve_brd_engine(make_task(cfg.task_spec()), cfg, "attack-closest")
     engine, note = resolve_brd_engine(make_task(cfg.task_spec()), cfg.replace(engine="auto"), "attack-closest")
     assert engine == "jax" and "continuation" in note
+
+
+def test_script_evaluation_same_on_both_engines():
+    """`eval --script`: the native engine plays the JAX engine's start states to the same
+    episode metrics (return summed step by step, steps, W, R)."""
+    from hybridmarl.training import evaluate as E
+
+    task = make_task(PRESETS["toy"]("combat").replace(scenario="m5v5").task_spec())
+    key = jax.random.key(3)
+    ref = E.run_episodes(task, E._script_policy_cached(task, "attack-closest"), None, key, 24)
+    got = E.run_scripted_episodes_native(task, "attack-closest", key, 24)
+    for name in ("won", "lost", "draw", "terminal_hp_reward", "return", "steps"):
+        np.testing.assert_array_equal(got[name], ref[name], err_msg=name)

@@ -129,6 +129,10 @@ class EvalConfig:
     """Battles / episodes (Section 5.1: 100)."""
     seed: int = 0
     """Seed of the start states."""
+    engine: Literal["auto", "native", "jax"] = "auto"
+    """Engine of a combat --script against a scripted enemy: 'native' (the default on a CPU,
+    'auto') plays the same start states to the same results faster; the 'random' script always
+    plays on jax (docs/engine-backends.md)."""
     setting: str | None = None
     """Named setting (docs/engine.md#settings): 'sparcraft' or 'paper'; combat rules and
     scenario geometry, traffic_junction p_arrive. Default: the run's; for --script, sparcraft."""
@@ -234,7 +238,7 @@ def run_eval(cfg: EvalConfig) -> int:
         res = E.evaluate_player(task, cfg.script, n=cfg.n, seed=cfg.seed, progress=True)
     else:
         assert cfg.script is not None
-        res = E.evaluate_task(task, None, None, n=cfg.n, seed=cfg.seed, script=canonical_script(task.kind, cfg.script))
+        res = E.evaluate_task(task, None, None, n=cfg.n, seed=cfg.seed, script=canonical_script(task.kind, cfg.script), engine=cfg.engine)
     res.update(
         policy=cfg.run_dir or f"script:{cfg.script}",
         env=spec.env,

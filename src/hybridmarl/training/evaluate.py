@@ -111,6 +111,49 @@ def best_line(task: Task, result: dict[str, Any], best: dict[str, Any]) -> str:
     return f"best checkpoint (episode {best['episodes']}, chosen on the selection states): {line}"
 
 
+def _native_script_eval(task: Task, script: str, engine: str) -> bool:
+    from hybridmarl.engine.backend import resolve_engine
+    from hybridmarl.engine.native.kernels import SCRIPT_CODES
+
+    if task.kind != "combat" or resolve_engine(engine) != "native":
+        return False
+    names = (script, getattr(task.env, "enemy_name", None))
+    return all(name in SCRIPT_CODES and name != "random" for name in names)
+
+
+def run_scripted_episodes_native(task: Task, script: str, key: jax.Array, n: int) -> dict[str, np.ndarray]:
+    """``run_episodes`` of a combat script on the native engine: the same start states (the
+    env's own reset, with the same keys), the episodes played by
+    ``envs.combat.native.play_scripted_episodes``."""
+    import numba
+
+    from hybridmarl.algos.hybrid.brd_native import NativeBRD
+    from hybridmarl.engine.native.kernels import SCRIPT_CODES
+    from hybridmarl.envs.combat.native import play_scripted_episodes
+
+    k_reset, _ = jax.random.split(key)
+    _, states = _reset_fn(task, n)(k_reset)
+    batch = NativeBRD.batch_arrays(jax.device_get(states))
+    env, rules = task.env, task.env.rules
+    won, lost = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
+    steps, ret, terminal = np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32)
+    play_scripted_episodes(
+        batch["fields"], batch["time"], batch["turn"], batch["stale"], batch["prev_hp_sum"], batch["init_hp0"],
+        np.array(rules.walkable, np.bool_, order="C", copy=True), SCRIPT_CODES[script], SCRIPT_CODES[env.enemy_name],
+        env.num_agents, env.num_actions, rules.overkill == "pass", rules.stalemate_limit, rules.max_turns, 0,
+        max(1, min(n, numba.get_num_threads() * 16)), won, lost, steps, ret, terminal,
+    )
+    return {
+        "won": won.astype(np.float32), "lost": lost.astype(np.float32), "draw": (~won & ~lost).astype(np.float32),
+        "terminal_hp_reward": terminal, "return": ret, "steps": steps,
+    }
+
+
+@functools.lru_cache(maxsize=16)
+def _reset_fn(task: Task, n: int):
+    return jax.jit(lambda k: jax.vmap(task.reset)(jax.random.split(k, n)))
+
+
 def summarize(task: Task, ep: dict[str, np.ndarray]) -> dict[str, Any]:
     """W/R (or failure rate) with 95% intervals from per-episode metrics (:meth:`Task.summarize`)."""
     return task.summarize(ep)
@@ -241,11 +284,19 @@ def mirrored_enemy(bundle: Policy, spec: TaskSpec):
 
 
 def evaluate_task(
-    task: Task, module: nets.MLP | None, variables: Any, *, n: int = 100, seed: int = 0, script: str | None = None
+    task: Task, module: nets.MLP | None, variables: Any, *, n: int = 100, seed: int = 0, script: str | None = None,
+    engine: str = "auto",
 ) -> dict[str, Any]:
-    """Run the protocol for an actor (``module``/``variables``) or a ``script``; summary dict."""
+    """Run the protocol for an actor (``module``/``variables``) or a ``script``; summary dict.
+
+    A combat ``script`` against a scripted enemy plays on the native engine when ``engine``
+    resolves to it (``auto``: on a CPU), from the same start states, with the same results; the
+    ``random`` script always plays on the JAX engine, whose draws the native one does not
+    reproduce."""
     key = jax.random.key(seed)
-    if script is not None:
+    if script is not None and _native_script_eval(task, script, engine):
+        ep = run_scripted_episodes_native(task, script, key, n)
+    elif script is not None:
         ep = run_episodes(task, _script_policy_cached(task, script), None, key, n)
     else:
         assert module is not None

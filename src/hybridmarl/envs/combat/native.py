@@ -20,7 +20,7 @@ native engine's own generator, not JAX's (docs/engine-backends.md).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from hybridmarl.engine.native.kernels import (
     ATTACK_BASE,
@@ -39,8 +39,10 @@ from hybridmarl.engine.native.kernels import (
     choose_actions,
     first_legal_action,
     game_over,
+    make_workspace,
     minimum_free_time,
     prepare_turn,
+    winner,
 )
 from hybridmarl.envs.combat.observe import HP_SCALE, POS_SCALE, TIME_SCALE
 from hybridmarl.envs.combat.view import ATTACK_OFFSET, MOVE_OFFSET, NOOP
@@ -279,4 +281,41 @@ def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agen
     out[base] = np.sqrt(dx * dx + dy * dy) if both else np.float32(0.0)
 
 
-__all__ = ["CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "script_env_actions"]
+__all__ = ["CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "play_scripted_episodes", "script_env_actions"]
+
+
+@njit(cache=True, parallel=True)
+def play_scripted_episodes(fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script, enemy,
+                           num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
+                           n_chunks, won, lost, steps, returns, terminal):
+    """Whole episodes of the combat env, our side played by ``script``, every game of the batch
+    in place (in parallel over ``n_chunks`` strided chunks): the env's episode metrics, with the
+    return summed step by step as the env's evaluation loop sums it."""
+    utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
+    b = hp.shape[0]
+    n = hp.shape[2]
+    for c in prange(n_chunks):
+        ws = make_workspace(n)
+        rank_slot = np.empty(n, np.int64)
+        rank_of = np.empty(n, np.int64)
+        acts = np.empty(num_agents, np.int64)
+        for g in range(c, b, n_chunks):
+            ret = np.float32(0.0)
+            count = 0
+            done = game_over(utype[g], hp[g], stale[g], turn[g], stalemate_limit, max_turns)
+            while not done:
+                script_env_actions(g, utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
+                                   t_attack[g], time, turn, stale, walkable, script, num_agents, stalemate_limit,
+                                   max_turns, seed, g, ws, rank_slot, rank_of, acts)
+                r, done = env_step(g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g],
+                                   t_move[g], t_attack[g], time, turn, stale, prev_hp_sum, walkable, acts,
+                                   num_agents, num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
+                                   init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
+                ret = ret + r
+                count += 1
+            w = winner(utype[g], hp[g])
+            won[g] = w == 0
+            lost[g] = w == 1
+            steps[g] = count
+            returns[g] = ret
+            terminal[g] = np.float32(_hp_diff(hp[g])) / np.float32(max(init_hp0[g], 1))
