@@ -44,75 +44,86 @@ def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkab
     then ``continuation`` (our side's script) for up to ``steps - 1`` more, against the
     ``enemy`` script. Writes the discounted return ``sum_t γ^t r_t``, the discount ``γ^K`` at
     the end, whether the game ended, and the critic features of the last state (when it did not
-    end). The batch's states are read, never written."""
+    end). The batch's states are read, never written. Pairs ``c, c + n_chunks, ...`` form chunk
+    ``c``; the chunks run in parallel."""
+    for c in prange(n_chunks):
+        # A plain (serial) function per chunk: Numba compiles it as such, not as a parfor body.
+        _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
+                        num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
+                        stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out)
+
+
+@njit(cache=True)
+def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
+                    num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
+                    stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out):
     utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
     m = games.shape[0]
     n = hp.shape[2]
-    for c in prange(n_chunks):
-        ws = make_workspace(n)
-        s_utype = np.empty((2, n), np.int32)
-        s_uid = np.empty((2, n), np.int32)
-        s_x = np.empty((2, n), np.int32)
-        s_y = np.empty((2, n), np.int32)
-        s_px = np.empty((2, n), np.int32)
-        s_py = np.empty((2, n), np.int32)
-        s_tact = np.empty((2, n), np.int32)
-        s_last = np.empty((2, n), np.int32)
-        s_hp = np.empty((2, n), np.int32)
-        s_tmove = np.empty((2, n), np.int32)
-        s_tatk = np.empty((2, n), np.int32)
-        s_time = np.empty(1, np.int32)
-        s_turn = np.empty(1, np.int32)
-        s_stale = np.empty(1, np.int32)
-        s_prev = np.empty((1, 2), np.int32)
-        rank_slot = np.empty(n, np.int64)
-        rank_of = np.empty(n, np.int64)
-        acts = np.empty(num_agents, np.int64)
-        values = np.empty((2, n), np.float32)
-        for i in range(c, m, n_chunks):
-            g = games[i]
-            s_utype[:] = utype[g]
-            s_uid[:] = uid[g]
-            s_x[:] = x[g]
-            s_y[:] = y[g]
-            s_px[:] = px[g]
-            s_py[:] = py[g]
-            s_tact[:] = t_act[g]
-            s_last[:] = last[g]
-            s_hp[:] = hp[g]
-            s_tmove[:] = t_move[g]
-            s_tatk[:] = t_attack[g]
-            s_time[0] = time[g]
-            s_turn[0] = turn[g]
-            s_stale[0] = stale[g]
-            s_prev[0, 0] = prev_hp_sum[g, 0]
-            s_prev[0, 1] = prev_hp_sum[g, 1]
-            for u in range(num_agents):
-                acts[u] = joint[i, u]
-            r, ended = env_step(0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
-                                s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts, num_agents,
-                                num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
-                                init_hp0[g], seed, g, ws, rank_slot, rank_of)
-            ret = r
-            disc = gamma
-            k = 1
-            while k < steps and not ended:
-                script_env_actions(0, s_utype, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
-                                   s_tatk, s_time, s_turn, s_stale, walkable, continuation, num_agents,
-                                   stalemate_limit, max_turns, seed, g, ws, rank_slot, rank_of, acts)
-                r, ended = env_step(0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp,
-                                    s_tmove, s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts,
-                                    num_agents, num_actions, enemy, overkill_pass, stalemate_limit,
-                                    max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
-                ret = ret + disc * r
-                disc = disc * gamma
-                k += 1
-            ret_out[i] = ret
-            disc_out[i] = disc
-            ended_out[i] = ended
-            if not ended:
-                critic_features(s_time[0], s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove, s_tatk,
-                                num_agents, num_enemies, values, feats_out[i])
+    ws = make_workspace(n)
+    s_utype = np.empty((2, n), np.int32)
+    s_uid = np.empty((2, n), np.int32)
+    s_x = np.empty((2, n), np.int32)
+    s_y = np.empty((2, n), np.int32)
+    s_px = np.empty((2, n), np.int32)
+    s_py = np.empty((2, n), np.int32)
+    s_tact = np.empty((2, n), np.int32)
+    s_last = np.empty((2, n), np.int32)
+    s_hp = np.empty((2, n), np.int32)
+    s_tmove = np.empty((2, n), np.int32)
+    s_tatk = np.empty((2, n), np.int32)
+    s_time = np.empty(1, np.int32)
+    s_turn = np.empty(1, np.int32)
+    s_stale = np.empty(1, np.int32)
+    s_prev = np.empty((1, 2), np.int32)
+    rank_slot = np.empty(n, np.int64)
+    rank_of = np.empty(n, np.int64)
+    acts = np.empty(num_agents, np.int64)
+    values = np.empty((2, n), np.float32)
+    for i in range(c, m, n_chunks):
+        g = games[i]
+        s_utype[:] = utype[g]
+        s_uid[:] = uid[g]
+        s_x[:] = x[g]
+        s_y[:] = y[g]
+        s_px[:] = px[g]
+        s_py[:] = py[g]
+        s_tact[:] = t_act[g]
+        s_last[:] = last[g]
+        s_hp[:] = hp[g]
+        s_tmove[:] = t_move[g]
+        s_tatk[:] = t_attack[g]
+        s_time[0] = time[g]
+        s_turn[0] = turn[g]
+        s_stale[0] = stale[g]
+        s_prev[0, 0] = prev_hp_sum[g, 0]
+        s_prev[0, 1] = prev_hp_sum[g, 1]
+        for u in range(num_agents):
+            acts[u] = joint[i, u]
+        r, ended = env_step(0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
+                            s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts, num_agents,
+                            num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
+                            init_hp0[g], seed, g, ws, rank_slot, rank_of)
+        ret = r
+        disc = gamma
+        k = 1
+        while k < steps and not ended:
+            script_env_actions(0, s_utype, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
+                               s_tatk, s_time, s_turn, s_stale, walkable, continuation, num_agents,
+                               stalemate_limit, max_turns, seed, g, ws, rank_slot, rank_of, acts)
+            r, ended = env_step(0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp,
+                                s_tmove, s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts,
+                                num_agents, num_actions, enemy, overkill_pass, stalemate_limit,
+                                max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
+            ret = ret + disc * r
+            disc = disc * gamma
+            k += 1
+        ret_out[i] = ret
+        disc_out[i] = disc
+        ended_out[i] = ended
+        if not ended:
+            critic_features(s_time[0], s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove, s_tatk,
+                            num_agents, num_enemies, values, feats_out[i])
 
 
 @njit(cache=True, fastmath=True)
