@@ -334,3 +334,21 @@ def test_ogtl_leaves_imitation_without_unlearning_it_m3v3(tmp_path, capsys):
     assert lam[1] == 1.0 and lam[-1] == pytest.approx(0.1)  # annealed, not switched
     np.testing.assert_allclose(agreement[1], agreement[0], atol=0.05)  # right after the switch
     assert agreement[1:].min() >= agreement[0] - 0.1  # and through the rest of stage 2
+
+
+def test_dqfd_team_reward_gives_every_agent_the_global_reward_m3v3(tmp_path, capsys):
+    run = tmp_path / "team"
+    assert main(["train", "--algo", "dqfd", *TOY, "--run-dir", str(run), "--team-reward"]) == 0
+    capsys.readouterr()
+    arrays, meta = load_checkpoint(_latest(run))
+    buf = subtree(arrays, "buffer")
+    _, demo_cap, demo_size, _, size = buf["counters"].tolist()
+    live = np.r_[np.arange(demo_size), demo_cap + np.arange(size)]
+    hp, hp2 = buf["state.game.hp"][live], buf["next.game.hp"][live]
+    h0 = buf["state.init_hp"][live, 0].astype(np.float64)
+    # The env's global reward: the change of the HP difference (no terminal term).
+    env_r = ((hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) - (hp[:, 0].sum(-1) - hp[:, 1].sum(-1))) / h0
+    valid = buf["valid"][live]
+    got = buf["reward"][live] * meta["reward_unit"]
+    np.testing.assert_allclose(got[valid], np.broadcast_to(env_r[:, None], got.shape)[valid], atol=1e-5)
+    assert np.abs(env_r).max() > 0  # some damage happened

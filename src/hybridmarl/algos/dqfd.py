@@ -30,7 +30,14 @@ Loss (Hester et al. 2018), per sampled agent-transition '(s, i, a, r_i, s')', 'o
 weighted by the importance-sampling weights of prioritised replay. An agent's own episode ends
 when its unit dies (or the car leaves) or the game ends: no bootstrap past that. The TD error is
 Huber-clipped as in DQN (Hester et al. name no form). Rewards are not log-scaled (the Atari
-'sign(r) log(1 + |r|)' of Hester et al.): the per-agent rewards are already normalised.
+'sign(r) log(1 + |r|)' of Hester et al.); they are divided by 'reward_unit' (default: the
+median |r| of the non-zero per-agent demonstration rewards, one Marine shot at m5v5), so that a
+typical reward event is worth 1 as on Atari, the scale the margin 0.8, the Huber threshold and
+the λ's were set for (docs/baselines.md#scale; on the raw rewards, where a shot is 0.03, the
+margin is 27 shots and DQfD only clones its demonstrator).
+
+train.csv's 'agreement' column: the fraction of deciding agents whose greedy action equals the
+demonstrator's on a fixed probe of the first 'PROBE_ROWS' demonstration states.
 
 Prioritised replay (proportional, Schaul et al. 2016 with DQfD's settings): priority
 'p = (|δ_1| + ε)^α', 'δ_1' the 1-step TD error (Hester et al. leave open which error sets it;
@@ -44,8 +51,8 @@ then updated (so within a block they are up to 'updates_per_call - 1' updates st
 the joint state and the next state (small integer pytrees); observations and legal masks are
 recomputed from them on the device.
 
-OGTL ('algos.ogtl') reuses all of this with different switches (no demonstrations after its
-imitation stage, no margin loss during RL).
+OGTL ('algos.ogtl') reuses all of this with different switches (uniform replay, 1-step TD,
+the margin loss's weight annealed during RL).
 """
 
 from __future__ import annotations
@@ -136,6 +143,9 @@ class LossOptions(Options):
     margin: float = 0.8
     """Margin l(a_E, a) for a != a_E (Hester et al. 2018: 0.8), in units of the scaled rewards
     (reward_unit)."""
+    team_reward: bool = False
+    """Learn from the environment's global reward, given to every agent, instead of the
+    per-agent rewards of Section 5.2 (an extension, not the paper's setting)."""
     reward_unit: float | None = None
     """Per-agent rewards are divided by this before learning, so that a typical reward event
     is 1, the scale of Atari's clipped rewards that DQfD's margin, Huber threshold and λ's were
@@ -233,8 +243,8 @@ def _quick(env: str) -> DQfDConfig:
     """'quick': the hybrid 'quick' preset's budget, combat 3,000 episodes in 128 parallel games
     (Traffic Junction 1,500 in 16), after 10,000 demonstration observations and 3,000
     pre-training updates; Adam 3·10^-4, batch 64, target network every 500 updates. Cost at m5v5
-    (paper setting, 2026-12-02, 2-core x86-64 CPU VM, shared): 3,000 episodes in 4.3 CPU-min
-    (30 min wall at a load of 16-20), less CPU than the hybrid 'quick' preset's 10-23 CPU-min."""
+    (paper setting, 2026-12-02, 2-core x86-64 CPU VM, shared): 3,000 episodes in 4.3-4.9 CPU-min
+    (26-30 min wall at a load of 16-20), less CPU than the hybrid 'quick' preset's 10-23 CPU-min."""
     return _paper(env).replace(
         pretrain_updates=3_000, optimizer="adam", lr=3e-4, batch_size=64, updates_per_call=16,
         target_update_every=500, buffer_size=20_000, checkpoint_every=500, **hybrid_budget("quick", env),
@@ -454,8 +464,10 @@ class QLearner:
         return row
 
     def _on_step(self, states, actions, next_states, reward, done, info):
-        del reward
-        return jax.vmap(self._transition)(states, actions, next_states, done, info)
+        row = jax.vmap(self._transition)(states, actions, next_states, done, info)
+        # The environment's global reward, for '--team-reward'.
+        row["team_reward"] = jnp.broadcast_to(reward[:, None], row["agent_reward"].shape).astype(jnp.float32)
+        return row
 
     def _collect_chunk(self, pool: Pool, q_vars: Any, eps: jax.Array, use_script: jax.Array, *, steps: int):
         """'steps' steps of ε-greedy play of the shared Q network (legal actions only), or of
@@ -552,6 +564,7 @@ def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, n
         row.update({"next." + n: v for n, v in flatten_named(out.pop("next")).items()})
         row.update({n: np.asarray(v) for n, v in out.items()})
         row["reward_env"] = np.asarray(r)
+        row["team_reward"] = np.broadcast_to(np.asarray(r, np.float32)[:, None], row["agent_reward"].shape).copy()
         parts.append({n: v[: idx.size] for n, v in row.items()})
     rows = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
     agree = float(np.mean(np.isclose(rows.pop("reward_env"), ds.arrays["reward"], atol=1e-6)))
@@ -710,6 +723,8 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                 demo_pool = new_pool(task, st.next_key(), cfg.num_envs)
                 rows, done, seg, st.demo_stats = record_demos(learner, demo_pool, _variables(st.q), cfg.demo_observations, cfg.gamma)
                 how = f"{cfg.demonstrator_name()}: " + ", ".join(f"{k} {v:.3f}" for k, v in st.demo_stats.items())
+            if cfg.team_reward:
+                rows["agent_reward"] = rows["team_reward"]
             # Rewards in units of a typical reward event, the scale DQfD's settings assume.
             st.reward_unit = reward_unit(rows["agent_reward"], rows["active"]) if cfg.reward_unit is None else float(cfg.reward_unit)
             rows["agent_reward"] = np.asarray(rows["agent_reward"], np.float32) / np.float32(st.reward_unit)
@@ -742,6 +757,8 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                 eps = cfg.eps_start + (cfg.eps_end - cfg.eps_start) * frac
                 st.pool, out = learner.collect_chunk(st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool))
                 rows, done, seg, stats = online_rows(out, st.assembler)
+                if cfg.team_reward:
+                    rows["agent_reward"] = rows["team_reward"]
                 if shaping is not None:
                     agrees = rows.pop("agrees")
                     rows["agent_reward"] = rows["agent_reward"] + np.float32(shaping(st.episodes)) * agrees
