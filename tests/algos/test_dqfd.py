@@ -8,7 +8,9 @@ also shares the start-state and evaluation functions that ``test_algos_cli`` com
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -24,13 +26,22 @@ from hybridmarl.envs.combat.rewards import damage_dealt as combat_damage_dealt
 from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint, subtree
 from hybridmarl.training.losses import (
     double_q_bootstrap,
+    greedy_agreement,
     huber,
     l2_penalty,
     large_margin_loss,
     legal_max,
+    linear_decay,
     nstep_returns,
+    reward_unit,
 )
 from tests.cli.test_learn import _one_json
+
+
+def _latest(run_dir: Path) -> Path:
+    path = latest_checkpoint(run_dir)
+    assert path is not None, f"no checkpoint in {run_dir}"
+    return path
 
 # -- losses ------------------------------------------------------------------------------------------
 
@@ -60,6 +71,45 @@ def test_huber_and_l2_by_hand():
     np.testing.assert_allclose(huber(jnp.asarray([0.5, -2.0])), [0.125, 1.5])
     # 1 + 4 + 9 = 14
     assert float(l2_penalty({"a": jnp.asarray([1.0, 2.0]), "b": jnp.asarray([[3.0]])})) == pytest.approx(14.0)
+
+
+def test_reward_unit_and_the_scaled_losses_by_hand():
+    # Per-agent rewards of two agents over three steps: shots of 6 HP of H0 = 200 (0.03), one
+    # double hit (0.06), a terminal reward 0.5, zeros; agent 1 is out of play at the last step
+    # (its -9 is not counted). Non-zero, in play: 0.03, 0.03, 0.06, 0.03, 0.5 -> median 0.03.
+    r = np.asarray([[0.03, 0.0], [-0.03, 0.06], [0.03, 0.5], [0.0, -9.0]])
+    valid = np.asarray([[True, True], [True, True], [True, True], [True, False]])
+    assert reward_unit(r, valid) == pytest.approx(0.03)
+    assert reward_unit(np.zeros((2, 2)), np.ones((2, 2), bool)) == 1.0
+    # What the unit does to DQfD's loss. Q of the raw rewards: the demonstrator's action 0 leads
+    # by one shot (0.03) on a return scale of 0.1. The Atari margin 0.8 is 27 shots: J_E =
+    # 0.8 + 0.07 - 0.10 = 0.77 and its gradient (+1 on Q(a), -1 on Q(a_E)) is 26 times the TD
+    # error of a one-shot mistake (huber'(0.03) = 0.03).
+    q_raw = jnp.asarray([[0.10, 0.07, -0.2]])
+    legal = jnp.ones((1, 3), bool)
+    a_e = jnp.asarray([0])
+    np.testing.assert_allclose(large_margin_loss(q_raw, a_e, legal, 0.8), [0.77], atol=1e-6)
+    np.testing.assert_allclose(jax.grad(lambda x: huber(x))(0.03), 0.03, atol=1e-7)
+    # In reward units (divided by 0.03) the same Q-values are 3.33 and 2.33: the margin 0.8 is now
+    # most of one shot, J_E = max(3.33, 2.33 + 0.8) - 3.33 = 0 (the lead of one shot already
+    # satisfies it), and a TD error of one shot has gradient 1, the margin loss's own size.
+    q_units = q_raw / 0.03
+    np.testing.assert_allclose(large_margin_loss(q_units, a_e, legal, 0.8), [0.0], atol=1e-6)
+    np.testing.assert_allclose(large_margin_loss(q_units, jnp.asarray([1]), legal, 0.8), [1.0 + 0.8 - 0.0], atol=1e-5)
+    np.testing.assert_allclose(jax.grad(lambda x: huber(x))(1.0), 1.0)
+
+
+def test_linear_decay_and_greedy_agreement_by_hand():
+    assert [linear_decay(1.0, e, 100) for e in (0, 25, 100, 300)] == pytest.approx([1.0, 0.75, 0.0, 0.0])
+    assert linear_decay(0.5, 10_000, 0) == 0.5
+    q = jnp.asarray([[1.0, 3.0, 2.0], [5.0, 1.0, 0.0], [0.0, 0.0, 9.0], [1.0, 1.0, 0.0]])
+    legal = jnp.asarray([[True, False, True], [True, True, True], [True, True, False], [True, True, True]])
+    expert = jnp.asarray([2, 0, 0, 1])
+    choice = jnp.asarray([True, True, False, True])
+    # Row 0: legal greedy is 2 (action 1 is illegal) = expert; row 1: 0 = expert; row 2 has no
+    # choice (not counted); row 3: tie -> lowest index 0 != 1.  2 of 3.
+    matches, count = greedy_agreement(q, legal, expert, choice)
+    assert (float(matches), float(count)) == (2.0, 3.0)
 
 
 def test_nstep_returns_by_hand():
@@ -147,7 +197,7 @@ def _state(hp, last, steps, init_hp=(70, 44)) -> CombatState:
     # Ids interleave: ours slot 0 = id 0, enemy slot 0 = id 1, ours slot 1 = id 2, enemy slot 1 = id 3.
     units = [UnitSpec("Terran_Marine", 0, 100, 100), UnitSpec("Terran_Marine", 1, 150, 100),
              UnitSpec("Terran_Marine", 0, 100, 120), UnitSpec("Terran_Marine", 1, 150, 120)]
-    game = build_state(units, 2).replace(hp=jnp.asarray(hp, jnp.int32))
+    game = dataclasses.replace(build_state(units, 2), hp=jnp.asarray(hp, jnp.int32))
     return CombatState(game=game, last_actions=jnp.asarray(last, jnp.int32), init_hp=jnp.asarray(init_hp, jnp.int32), steps=jnp.asarray(steps, jnp.int32))
 
 
@@ -190,7 +240,7 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     with open(run / "train.csv") as f:
         rows = list(csv.DictReader(f))
     assert rows[0]["episodes"] == "0" and {"loss", "margin_loss", "nstep_loss", "won_100", "epsilon", "updates"} <= set(rows[0])
-    arrays, meta = load_checkpoint(latest_checkpoint(run))
+    arrays, meta = load_checkpoint(_latest(run))
     assert meta["phase"] == "online" and meta["episodes"] >= 4 and meta["updates"] > 8
     buf = subtree(arrays, "buffer")
     cap, demo_cap, demo_size, _, size = buf["counters"].tolist()
@@ -204,21 +254,26 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     terminal = (hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) / h0
     ended = buf["disc1"][live].max(axis=1) == 0  # game over: every agent's episode ended
     n = buf["reward"].shape[1]
-    np.testing.assert_allclose(buf["reward"][live].sum(1) - np.where(ended, n * terminal, 0.0), env_r, atol=1e-5)
+    # The buffer holds the rewards in reward units (the median |r| of the non-zero
+    # demonstration rewards; one Marine shot at m3v3 is 6 HP of the 120 allied HP).
+    unit = meta["reward_unit"]
+    assert unit == pytest.approx(6 / 120, rel=0.02)
+    np.testing.assert_allclose(buf["reward"][live].sum(1) * unit - np.where(ended, n * terminal, 0.0), env_r, atol=1e-5)
     assert env_r.min() < 0 or env_r.max() > 0  # some damage happened
     # --resume continues the same run to a larger budget.
     first = meta
     assert main(["train", "--algo", "dqfd", "--run-dir", str(run), "--resume", "--total-episodes", "8", "--no-progress"]) == 0
     assert "resumed" in capsys.readouterr().out
-    _, meta = load_checkpoint(latest_checkpoint(run))
+    _, meta = load_checkpoint(_latest(run))
     assert meta["episodes"] >= 8
     # Wall and CPU time count across the resume (the first process's time is carried over).
     assert meta["wall_s"] > first["wall_s"] > 0 and meta["cpu_s"] > first["cpu_s"] > 0
-    # OGTL: same machinery; after imitation the demonstrations leave the buffer. With the
+    # OGTL: same machinery; with a final margin weight of 0 the demonstrations leave the buffer
+    # once the margin loss has decayed (over 2 episodes in 'toy'). With the
     # agreement bonus (constant 0.5 here) every stage-2 agent reward is the per-agent damage
     # reward plus 0.5 per agent that played the script's action.
     og = tmp_path / "ogtl"
-    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(og), "--agreement-bonus", "0.5", "--eval-every", "2"]) == 0
+    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(og), "--agreement-bonus", "0.5", "--eval-every", "2", "--lambda-margin-final", "0"]) == 0
     assert "best checkpoint (episode " in capsys.readouterr().out
     # --eval-every kept the best periodically evaluated Q-network; eval --checkpoint best plays it.
     best = json.loads((og / "eval.json").read_text())["best"]
@@ -227,11 +282,11 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     assert _one_json(capsys.readouterr().out)["episodes"] == best["episodes"]
     with open(og / "evals.csv") as f:
         assert {"episodes", "W", "R", "best"} <= set(next(csv.DictReader(f)))
-    arrays, meta = load_checkpoint(latest_checkpoint(og))
+    arrays, meta = load_checkpoint(_latest(og))
     buf = subtree(arrays, "buffer")
     assert not buf["valid"][:64].any()
     cfg = json.loads((og / "config.json").read_text())
-    assert cfg["algo"] == "ogtl" and cfg["config"]["keep_demos"] is False and cfg["config"]["lambda_margin_online"] == 0.0
+    assert cfg["algo"] == "ogtl" and cfg["config"]["keep_demos"] is False and cfg["config"]["margin_decay_episodes"] == 2
     assert cfg["config"]["agreement_bonus"] == 0.5
     size = int(buf["counters"][4])
     live = demo_cap + np.arange(size)
@@ -240,7 +295,7 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     env_r = ((hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) - (hp[:, 0].sum(-1) - hp[:, 1].sum(-1))) / h0
     terminal = (hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) / h0
     ended = buf["disc1"][live].max(axis=1) == 0
-    agreeing = (buf["reward"][live].sum(1) - np.where(ended, n * terminal, 0.0) - env_r) / 0.5
+    agreeing = (buf["reward"][live].sum(1) * meta["reward_unit"] - np.where(ended, n * terminal, 0.0) - env_r) / 0.5
     np.testing.assert_allclose(agreeing, np.round(agreeing), atol=1e-4)
     assert agreeing.min() > -1e-4 and agreeing.max() <= n + 1e-4 and agreeing.max() >= 1
     with open(og / "train.csv") as f:
@@ -260,3 +315,40 @@ def test_ogtl_agreement_schedule_decays_linearly_and_is_off_by_default():
     assert [w(0), w(50), w(100), w(500)] == pytest.approx([0.2, 0.1, 0.0, 0.0])
     const = ogtl.agreement_schedule(ogtl.OGTLConfig().replace(agreement_bonus=0.2))
     assert const is not None and const(10_000) == pytest.approx(0.2)
+
+
+def test_ogtl_leaves_imitation_without_unlearning_it_m3v3(tmp_path, capsys):
+    # Stage 1 long enough to imitate (200 updates on the 64 demonstration records), then stage 2
+    # with the margin loss's weight decaying from 1 to 0.1 over 2 episodes (the defaults). The
+    # train.csv 'agreement' column (greedy action = demonstrator's, on the fixed probe of
+    # demonstration states) is in [0, 1] on every row and does not fall at the switch.
+    run = tmp_path / "ogtl"
+    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(run), "--pretrain-updates", "200", "--total-episodes", "8"]) == 0
+    capsys.readouterr()
+    with open(run / "train.csv") as f:
+        rows = list(csv.DictReader(f))
+    agreement = np.asarray([float(r["agreement"]) for r in rows])
+    lam = np.asarray([float(r["lambda_margin"]) for r in rows])
+    assert np.all((agreement >= 0.0) & (agreement <= 1.0))
+    assert rows[0]["episodes"] == "0" and agreement[0] > 0.8  # imitation learned the tactic
+    assert lam[1] == 1.0 and lam[-1] == pytest.approx(0.1)  # annealed, not switched
+    np.testing.assert_allclose(agreement[1], agreement[0], atol=0.05)  # right after the switch
+    assert agreement[1:].min() >= agreement[0] - 0.1  # and through the rest of stage 2
+
+
+def test_dqfd_team_reward_gives_every_agent_the_global_reward_m3v3(tmp_path, capsys):
+    run = tmp_path / "team"
+    assert main(["train", "--algo", "dqfd", *TOY, "--run-dir", str(run), "--team-reward"]) == 0
+    capsys.readouterr()
+    arrays, meta = load_checkpoint(_latest(run))
+    buf = subtree(arrays, "buffer")
+    _, demo_cap, demo_size, _, size = buf["counters"].tolist()
+    live = np.r_[np.arange(demo_size), demo_cap + np.arange(size)]
+    hp, hp2 = buf["state.game.hp"][live], buf["next.game.hp"][live]
+    h0 = buf["state.init_hp"][live, 0].astype(np.float64)
+    # The env's global reward: the change of the HP difference (no terminal term).
+    env_r = ((hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) - (hp[:, 0].sum(-1) - hp[:, 1].sum(-1))) / h0
+    valid = buf["valid"][live]
+    got = buf["reward"][live] * meta["reward_unit"]
+    np.testing.assert_allclose(got[valid], np.broadcast_to(env_r[:, None], got.shape)[valid], atol=1e-5)
+    assert np.abs(env_r).max() > 0  # some damage happened

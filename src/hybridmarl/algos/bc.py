@@ -52,12 +52,15 @@ class BCConfig(TrainConfig):
 
 
 def _paper(env: str) -> BCConfig:
-    """'paper': 10,000 demonstration observations (Section 5.1), 5,000 SGD steps at 10^-3."""
+    """'paper': 10,000 demonstration observations (Section 5.1), 5,000 SGD steps at 10^-3.
+    Budget: BC plays no training episodes; its data is the 10,000 demonstration observations
+    every learner gets (the hybrid 'paper' preset's 20,000 episodes have no counterpart)."""
     return BCConfig().replace(env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest")
 
 
 def _quick(env: str) -> BCConfig:
-    """'quick': 'paper' with 2,000 Adam steps."""
+    """'quick': 'paper' with 2,000 Adam steps. Budget: no training episodes (the hybrid
+    'quick' preset's 3,000 have no counterpart), the same 10,000 demonstration observations."""
     return _paper(env).replace(bc_steps=2_000, optimizer="adam")
 
 
@@ -96,7 +99,15 @@ def train(cfg: BCConfig) -> TrainResult:
         check_finite("behavioural-cloning loss", float(losses[-1]), "the end of cloning")
         acc = D.bc_accuracy(actor, module, rows)
         every = max(1, cfg.bc_steps // 200)
-        run.log.train.write([{"episodes": 0, "step": i + 1, "bc_loss": float(losses[i])} for i in range(0, len(losses), every)])
+        # 'agreement' (with the demonstrator, on every demonstration decision; as DQfD's and
+        # OGTL's column) is measured once, on the last row.
+        steps = list(range(0, len(losses), every))
+        if steps[-1] != len(losses) - 1:
+            steps.append(len(losses) - 1)
+        run.log.train.write([
+            {"episodes": 0, "step": i + 1, "bc_loss": float(losses[i]), "agreement": acc if i == len(losses) - 1 else float("nan")}
+            for i in steps
+        ])
         print(f"cloned {ds.size} observations ({rows[0].shape[0]} agent decisions): loss {losses[-1]:.4f}, accuracy {acc:.3f}")
         save_checkpoint(
             run.run_dir, 0, prefixed(flatten_named(actor), "actor"),

@@ -30,7 +30,14 @@ Loss (Hester et al. 2018), per sampled agent-transition '(s, i, a, r_i, s')', 'o
 weighted by the importance-sampling weights of prioritised replay. An agent's own episode ends
 when its unit dies (or the car leaves) or the game ends: no bootstrap past that. The TD error is
 Huber-clipped as in DQN (Hester et al. name no form). Rewards are not log-scaled (the Atari
-'sign(r) log(1 + |r|)' of Hester et al.): the per-agent rewards are already normalised.
+'sign(r) log(1 + |r|)' of Hester et al.); they are divided by 'reward_unit' (default: the
+median |r| of the non-zero per-agent demonstration rewards, one Marine shot at m5v5), so that a
+typical reward event is worth 1 as on Atari, the scale the margin 0.8, the Huber threshold and
+the λ's were set for (docs/baselines.md#scale; on the raw rewards, where a shot is 0.03, the
+margin is 27 shots and DQfD only clones its demonstrator).
+
+train.csv's 'agreement' column: the fraction of deciding agents whose greedy action equals the
+demonstrator's on a fixed probe of the first 'PROBE_ROWS' demonstration states.
 
 Prioritised replay (proportional, Schaul et al. 2016 with DQfD's settings): priority
 'p = (|δ_1| + ε)^α', 'δ_1' the 1-step TD error (Hester et al. leave open which error sets it;
@@ -44,8 +51,8 @@ then updated (so within a block they are up to 'updates_per_call - 1' updates st
 the joint state and the next state (small integer pytrees); observations and legal masks are
 recomputed from them on the device.
 
-OGTL ('algos.ogtl') reuses all of this with different switches (no demonstrations after its
-imitation stage, no margin loss during RL).
+OGTL ('algos.ogtl') reuses all of this with different switches (uniform replay, 1-step TD,
+the margin loss's weight annealed during RL).
 """
 
 from __future__ import annotations
@@ -67,10 +74,13 @@ from hybridmarl.training.checkpoint import prefixed
 from hybridmarl.training.config import Options, TrainConfig, check_finite, key_data
 from hybridmarl.training.losses import (
     double_q_bootstrap,
+    greedy_agreement,
     huber,
     l2_penalty,
     large_margin_loss,
+    linear_decay,
     nstep_returns,
+    reward_unit,
 )
 from hybridmarl.training.rollout import EpisodeAssembler, Pool, new_pool, pool_steps
 from hybridmarl.training.run import Run, RunState, TrainResult
@@ -122,11 +132,25 @@ class LossOptions(Options):
     lambda_margin: float = 1.0
     """λ2, weight of the large-margin loss on demonstration samples (Hester et al. 2018: 1.0)."""
     lambda_margin_online: float | None = None
-    """λ2 during interaction (default: lambda_margin; OGTL: 0)."""
+    """λ2 during interaction (default: lambda_margin)."""
+    margin_decay_episodes: int = 0
+    """Interaction episodes over which λ2 decays linearly to lambda_margin_final (0: it stays
+    constant, as in DQfD; OGTL anneals it, docs/baselines.md#ogtl)."""
+    lambda_margin_final: float = 0.0
+    """λ2 at the end of the decay (only with margin_decay_episodes > 0)."""
     lambda_l2: float = 1e-5
     """λ3, weight of the L2 penalty on the weights (Hester et al. 2018: 1e-5)."""
     margin: float = 0.8
-    """Margin l(a_E, a) for a != a_E (Hester et al. 2018: 0.8)."""
+    """Margin l(a_E, a) for a != a_E (Hester et al. 2018: 0.8), in units of the scaled rewards
+    (reward_unit)."""
+    team_reward: bool = False
+    """Learn from the environment's global reward, given to every agent, instead of the
+    per-agent rewards of Section 5.2 (an extension, not the paper's setting)."""
+    reward_unit: float | None = None
+    """Per-agent rewards are divided by this before learning, so that a typical reward event
+    is 1, the scale of Atari's clipped rewards that DQfD's margin, Huber threshold and λ's were
+    set for (docs/baselines.md#scale). None: measured on the demonstrations, the median |r| of
+    the non-zero per-agent rewards (one Marine shot at m5v5: about 0.03). 1: the raw rewards."""
 
 
 @dataclass(frozen=True)
@@ -194,24 +218,42 @@ class DQfDConfig(TrainConfig):
     q_network: OmitArgPrefixes[QNetworkOptions] = dataclasses.field(default_factory=QNetworkOptions)
 
 
+def hybrid_budget(preset: str, env: str) -> dict[str, int]:
+    """The interaction budget of the hybrid method's preset of the same name: its episodes and
+    parallel games, which the baselines' presets take so that every learner gets as many
+    episodes (and demonstrations) as the method it is compared with."""
+    from hybridmarl.algos.hybrid.config import PRESETS as HYBRID_PRESETS
+
+    hybrid = HYBRID_PRESETS[preset](env)
+    return {"total_episodes": hybrid.total_episodes, "num_envs": hybrid.num_envs}
+
+
 def _paper(env: str) -> DQfDConfig:
     """'paper': DQfD with the settings of Hester et al. (AAAI 2018) where they carry over
-    (docs/baselines.md) and the paper's shared ones (Section 5.1: SGD, 10^-3, λ = 0.995); 20,000
-    episodes (the paper gives no budget)."""
-    return DQfDConfig().replace(env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest")
+    (docs/baselines.md) and the paper's shared ones (Section 5.1: SGD, 10^-3, λ = 0.995), on
+    rewards in units of a typical reward event (reward_unit). Budget: the hybrid 'paper'
+    preset's, 20,000 episodes in 32 parallel games (the paper gives no budget), after 10,000
+    demonstration observations and 50,000 pre-training updates."""
+    return DQfDConfig().replace(
+        env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest", **hybrid_budget("paper", env),
+    )
 
 
 def _quick(env: str) -> DQfDConfig:
-    """'quick', minutes on a CPU: 600 episodes, 3,000 pre-training updates, Adam, a faster target."""
+    """'quick': the hybrid 'quick' preset's budget, combat 3,000 episodes in 128 parallel games
+    (Traffic Junction 1,500 in 16), after 10,000 demonstration observations and 3,000
+    pre-training updates; Adam 3·10^-4, batch 64, target network every 500 updates. Cost at m5v5
+    (paper setting, 2026-12-02, 2-core x86-64 CPU VM, shared): 3,000 episodes in 4.3-4.9 CPU-min
+    (26-30 min wall at a load of 16-20), less CPU than the hybrid 'quick' preset's 10-23 CPU-min."""
     return _paper(env).replace(
-        total_episodes=600, pretrain_updates=3_000, optimizer="adam", lr=3e-4, batch_size=64,
-        updates_per_call=16, target_update_every=500, buffer_size=20_000, checkpoint_every=200,
+        pretrain_updates=3_000, optimizer="adam", lr=3e-4, batch_size=64, updates_per_call=16,
+        target_update_every=500, buffer_size=20_000, checkpoint_every=500, **hybrid_budget("quick", env),
     )
 
 
 def _toy(env: str) -> DQfDConfig:
-    """'toy', seconds: a smoke test of the whole pipeline (tests, CI): 4 episodes, a tiny network,
-    no learning."""
+    """'toy', seconds: a smoke test of the whole pipeline (tests, CI): 4 episodes in 4 games,
+    a tiny network, no learning."""
     return _quick(env).replace(
         total_episodes=4, num_envs=4, chunk_steps=8, demo_observations=64, pretrain_updates=8,
         batch_size=16, updates_per_call=4, target_update_every=8, buffer_size=256, actor_hidden=(16, 16, 16),
@@ -294,9 +336,20 @@ class PrioritizedReplay:
             self.nexts[k][pos] = rows["next." + k]
 
     def drop_demos(self) -> None:
-        """Stop sampling the demonstrations (OGTL's RL stage)."""
+        """Stop sampling the demonstrations (OGTL's RL stage). Their states and actions stay
+        (the agreement probe reads them)."""
         self.cols["valid"][: self.demo_cap] = False
         self.cols["prio"][: self.demo_cap] = 0.0
+
+    def demos_live(self) -> bool:
+        return bool(self.cols["valid"][: self.demo_size].any())
+
+    def demo_probe(self, count: int) -> tuple[Any, np.ndarray]:
+        """The first 'count' demonstration rows: (states '[P, ...]', the demonstrator's actions
+        '[P, N]'), a fixed probe set for the agreement column."""
+        p = min(int(count), self.demo_size)
+        states = unflatten_named(self.template, {k: v[:p] for k, v in self.states.items()}, batch_dims=1)
+        return states, self.cols["actions"][:p]
 
     def live_mask(self) -> np.ndarray:
         rows = np.zeros(self.capacity + self.demo_cap, bool)
@@ -378,6 +431,17 @@ class QLearner:
         self.collect_chunk = jax.jit(functools.partial(self._collect_chunk, steps=chunk_steps))
         self.update_block = jax.jit(self._update_block)
         self.resimulate = jax.jit(jax.vmap(self._transition))
+        self.probe_agreement = jax.jit(self._probe_agreement)
+
+    def _probe_agreement(self, q_vars: Any, states: Any, actions: jax.Array) -> jax.Array:
+        """Fraction of the deciding agents (in play, two or more legal actions) of 'states'
+        '[P, ...]' whose legal greedy action equals the recorded 'actions' '[P, N]'."""
+        obs = jax.vmap(self.task.observe)(states)
+        legal = jax.vmap(self.task.avail)(states)
+        q = nets.apply_eval(self.module, q_vars, obs.reshape((-1, obs.shape[-1]))).reshape(legal.shape)
+        choice = jax.vmap(self.task.env.agent_active)(states) & (jnp.sum(legal, axis=-1) >= 2)
+        matches, count = greedy_agreement(q, legal, actions, choice)
+        return matches / jnp.maximum(count, 1.0)
 
     def _transition(self, state: Any, actions: jax.Array, next_state: Any, done: jax.Array, info: dict) -> dict:
         """What a buffer row needs from one step 'state -> next_state'."""
@@ -400,8 +464,10 @@ class QLearner:
         return row
 
     def _on_step(self, states, actions, next_states, reward, done, info):
-        del reward
-        return jax.vmap(self._transition)(states, actions, next_states, done, info)
+        row = jax.vmap(self._transition)(states, actions, next_states, done, info)
+        # The environment's global reward, for '--team-reward'.
+        row["team_reward"] = jnp.broadcast_to(reward[:, None], row["agent_reward"].shape).astype(jnp.float32)
+        return row
 
     def _collect_chunk(self, pool: Pool, q_vars: Any, eps: jax.Array, use_script: jax.Array, *, steps: int):
         """'steps' steps of ε-greedy play of the shared Q network (legal actions only), or of
@@ -469,6 +535,8 @@ def build_learner(task: Task, hidden: tuple[int, ...], optimizer: str, lr: float
 
 
 LOSS_NAMES = ("loss", "td_loss", "nstep_loss", "margin_loss", "l2")
+#: Demonstration states in the fixed probe set of the train.csv 'agreement' column.
+PROBE_ROWS = 1024
 
 
 # -- demonstrations -> buffer rows ---------------------------------------------------------------------------
@@ -496,6 +564,7 @@ def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, n
         row.update({"next." + n: v for n, v in flatten_named(out.pop("next")).items()})
         row.update({n: np.asarray(v) for n, v in out.items()})
         row["reward_env"] = np.asarray(r)
+        row["team_reward"] = np.broadcast_to(np.asarray(r, np.float32)[:, None], row["agent_reward"].shape).copy()
         parts.append({n: v[: idx.size] for n, v in row.items()})
     rows = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
     agree = float(np.mean(np.isclose(rows.pop("reward_env"), ds.arrays["reward"], atol=1e-6)))
@@ -559,10 +628,11 @@ class DQfDState(RunState):
     pretrain_done: int = 0
     update_credit: float = 0.0
     next_target: int = 0
+    reward_unit: float = 1.0
 
     TREES: ClassVar[dict[str, str]] = {"actor": "q", "target": "target"}
     BUFFERS: ClassVar[dict[str, str]] = {"buffer": "buffer"}
-    COUNTERS: ClassVar[tuple[str, ...]] = (*RunState.COUNTERS, "updates", "pretrain_done", "update_credit", "next_target")
+    COUNTERS: ClassVar[tuple[str, ...]] = (*RunState.COUNTERS, "updates", "pretrain_done", "update_credit", "next_target", "reward_unit")
 
     def rng(self) -> np.random.Generator:
         return np.random.default_rng(np.asarray(jax.random.key_data(self.next_key())).astype(np.uint64))
@@ -581,6 +651,8 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
     taken when the transitions enter the buffer). None: no bonus and nothing computed for it."""
     from hybridmarl.training import demos as D
 
+    if cfg.reward_unit is not None and not cfg.reward_unit > 0:
+        raise TaskError(f"--reward-unit must be positive, got {cfg.reward_unit}")
     with Run(algo, cfg) as run:
         # ---- Phase 0: set-up ------------------------------------------------------------------------
         task = run.task
@@ -599,10 +671,23 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         )
         run.start(st, learner.module, lambda: _variables(st.q), lambda: prefixed(flatten_named(st.q), "actor"), networks={"q_params": nets.num_params(q.params)})
 
-        def loss_head(episodes: int, eps: float, terms: np.ndarray) -> dict[str, Any]:
+        probe: list[Any] = []
+
+        def agreement() -> float:
+            """Agreement with the demonstrator on a fixed probe set: the first PROBE_ROWS
+            demonstration states (docs/baselines.md#agreement)."""
+            if not probe:
+                probe.append(jax.device_put(st.buffer.demo_probe(PROBE_ROWS)))
+            states, actions = probe[0]
+            return float(learner.probe_agreement(_variables(st.q), states, actions))
+
+        def loss_head(episodes: int, eps: float, lam_e: float, terms: np.ndarray) -> dict[str, Any]:
             """The method's train.csv columns."""
             bonus = shaping(episodes) if shaping is not None else 0.0
-            return {"updates": st.updates, "epsilon": eps, "agreement_bonus": bonus, **dict(zip(LOSS_NAMES, terms.tolist(), strict=True))}
+            return {
+                "updates": st.updates, "epsilon": eps, "agreement": agreement(), "lambda_margin": lam_e,
+                "agreement_bonus": bonus, **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)),
+            }
 
         def train_updates(count: int, beta: float, coeffs: np.ndarray, where: str) -> np.ndarray:
             """'count' updates (rounded up to whole blocks) on prioritised minibatches; mean loss terms."""
@@ -638,27 +723,33 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                 demo_pool = new_pool(task, st.next_key(), cfg.num_envs)
                 rows, done, seg, st.demo_stats = record_demos(learner, demo_pool, _variables(st.q), cfg.demo_observations, cfg.gamma)
                 how = f"{cfg.demonstrator_name()}: " + ", ".join(f"{k} {v:.3f}" for k, v in st.demo_stats.items())
+            if cfg.team_reward:
+                rows["agent_reward"] = rows["team_reward"]
+            # Rewards in units of a typical reward event, the scale DQfD's settings assume.
+            st.reward_unit = reward_unit(rows["agent_reward"], rows["active"]) if cfg.reward_unit is None else float(cfg.reward_unit)
+            rows["agent_reward"] = np.asarray(rows["agent_reward"], np.float32) / np.float32(st.reward_unit)
             st.buffer = new_buffer(int(done.size))
             st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step, demo=True)
             st.demo_stats.update(records=float(done.size), episodes=float(len(np.unique(seg))))
-            print(f"{done.size} demonstration records from {len(np.unique(seg))} episodes ({how})")
+            print(f"{done.size} demonstration records from {len(np.unique(seg))} episodes ({how}); reward unit {st.reward_unit:.4g}")
             # ---- Phase 2: pre-training on demonstrations only ----------------------------------------
             t0 = time.time()
             td_on = 1.0 if cfg.pretrain_td else 0.0
             coeffs = np.asarray([td_on, td_on * cfg.lambda_nstep, cfg.lambda_margin, cfg.lambda_l2, cfg.margin])
             terms = train_updates(cfg.pretrain_updates, cfg.per_beta0, coeffs, "pre-training")
             st.pretrain_done = st.updates
-            run.log.train.write([run.train_row(loss_head(0, float("nan"), terms), 0.0, episodes=0)])
-            print(f"pre-trained on demonstrations: {st.updates} updates ({time.time() - t0:.0f}s), " + ", ".join(f"{n} {v:.4f}" for n, v in zip(LOSS_NAMES, terms, strict=True)))
-            if not cfg.keep_demos:
-                st.buffer.drop_demos()
+            run.log.train.write([run.train_row(loss_head(0, float("nan"), cfg.lambda_margin, terms), 0.0, episodes=0)])
+            print(f"pre-trained on demonstrations: {st.updates} updates ({time.time() - t0:.0f}s), " + ", ".join(f"{n} {v:.4f}" for n, v in zip(LOSS_NAMES, terms, strict=True)) + f", agreement {agreement():.3f}")
+            # Interaction bootstraps from the pre-trained network, not from an older copy.
+            st.target = _variables(st.q)
+            st.next_target = st.updates + cfg.target_update_every
             st.phase = "online"
             run.save()
 
         # ---- Phase 3: interaction ---------------------------------------------------------------------
-        lam_e = cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
-        coeffs = np.asarray([1.0, cfg.lambda_nstep, lam_e, cfg.lambda_l2, cfg.margin])
+        lam_online = cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
         terms = np.full(len(LOSS_NAMES), np.nan)
+        lam_e = lam_online
         with run.loop():
             while run.running():
                 # ε-greedy play of the shared Q network (legal actions only), compiled.
@@ -666,11 +757,22 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                 eps = cfg.eps_start + (cfg.eps_end - cfg.eps_start) * frac
                 st.pool, out = learner.collect_chunk(st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool))
                 rows, done, seg, stats = online_rows(out, st.assembler)
+                if cfg.team_reward:
+                    rows["agent_reward"] = rows["team_reward"]
                 if shaping is not None:
                     agrees = rows.pop("agrees")
                     rows["agent_reward"] = rows["agent_reward"] + np.float32(shaping(st.episodes)) * agrees
+                rows["agent_reward"] = np.asarray(rows["agent_reward"], np.float32) / np.float32(st.reward_unit)
                 st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step)
                 run.count(stats, cfg.chunk_steps * cfg.num_envs)
+                # λ2 (constant, or annealed to lambda_margin_final); without keep_demos the
+                # demonstrations leave the buffer once λ2 is 0 (at once when it is 0 throughout).
+                lam_e = lam_online
+                if cfg.margin_decay_episodes > 0:
+                    lam_e = cfg.lambda_margin_final + linear_decay(lam_online - cfg.lambda_margin_final, st.episodes, cfg.margin_decay_episodes)
+                if not cfg.keep_demos and lam_e == 0.0 and st.episodes >= cfg.margin_decay_episodes and st.buffer.demos_live():
+                    st.buffer.drop_demos()
+                coeffs = np.asarray([1.0, cfg.lambda_nstep, lam_e, cfg.lambda_l2, cfg.margin])
                 # One update every train_every env steps, IS exponent β annealed to 1.
                 st.update_credit += cfg.chunk_steps * cfg.num_envs / cfg.train_every
                 if st.buffer.live_mask().any() and st.update_credit >= cfg.updates_per_call:
@@ -678,7 +780,7 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                     st.update_credit -= blocks * cfg.updates_per_call
                     beta = cfg.per_beta0 + (1.0 - cfg.per_beta0) * min(1.0, st.episodes / max(cfg.total_episodes, 1))
                     terms = train_updates(blocks * cfg.updates_per_call, beta, coeffs, f"episode {st.episodes}")
-                run.log_chunk(loss_head(st.episodes, eps, terms), f"loss {terms[0]:.4f}")
+                run.log_chunk(loss_head(st.episodes, eps, lam_e, terms), f"loss {terms[0]:.4f}")
 
         # ---- Phase 4: evaluation ----------------------------------------------------------------------------
         return run.finish({"updates": st.updates})

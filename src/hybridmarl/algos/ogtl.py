@@ -4,17 +4,23 @@
     Stage 1  tactic imitation: the shared Q network (the actor's architecture, |A| outputs) is
              fitted to the demonstrator's actions (the same sub-optimal demonstrator the other
              methods get, playing the role of OGTL's "human-made agent") by the large-margin
-             supervised loss, with DQfD-style TD terms on the same data ('pretrain_td',
-             default on) so that stage 2 starts from Q-values on the reward's scale, not only
-             from an action ranking. Hu et al. leave the exact stage-1 objective open
+             supervised loss, with the 1-step TD term on the same data ('pretrain_td', default
+             on) so that stage 2 starts from Q-values on the reward's scale, not only from an
+             action ranking. Hu et al. leave the exact stage-1 objective open
              (docs/baselines.md); '--no-pretrain-td' gives the purely supervised variant.
-    Stage 2  RL fine-tuning with the per-agent rewards (docs/baselines.md; Section 5.2: "the
-             same to [Hu et al., 2018]") and **no demonstration loss**: double DQN with a target
-             network and uniform replay of the agents' own transitions only; the demonstrations
-             leave the buffer and the margin loss is off (the sequential "imitate, then RL" that
-             Hu et al. contrast with DQfD's joint use of demonstrations). ε-greedy
+    Stage 2  RL refinement of the imitated policy with the per-agent rewards (docs/baselines.md;
+             Section 5.2: "the same to [Hu et al., 2018]"): double DQN with a target network
+             seeded from stage 1 and uniform replay. Both stages learn on the same reward scale
+             (rewards in units of a typical reward event, 'reward_unit'), and stage 2 leaves
+             imitation gradually: the margin loss on the demonstrations, still in the buffer,
+             decays linearly from λ2 = 1 to 'lambda_margin_final' = 0.1 over the first half of
+             the episodes ('margin_decay_episodes') and stays there. With a final weight of 0
+             the demonstrations leave the buffer after the decay and the rest is RL on the
+             agents' own transitions only (Hu et al.'s sequential "imitate, then RL"); at m5v5
+             that unlearns the imitated policy (docs/baselines.md#ogtl). ε-greedy
              exploration decays from 0.1 to 0.01 over the first quarter of the episodes (not
-             given by Hu et al.).
+             given by Hu et al.). '--margin-decay-episodes 0 --lambda-margin-online 0
+             --reward-unit 1' is the former abrupt switch on raw rewards.
     Stage 3  evaluation (legal argmax of Q; 'hybridmarl eval' loads it like an actor).
 
 The machinery (buffer, losses, compiled updates, checkpoints, resume) is DQfD's ('algos.dqfd'); only
@@ -47,15 +53,22 @@ class OGTLDemoOptions(dqfd.DemoOptions):
     """Stage 1: the demonstrations and the imitation of the tactic."""
 
     keep_demos: bool = False
-    """Keep the demonstrations in the buffer in stage 2 (OGTL: no, Hu et al. 2018)."""
+    """Keep the demonstrations in the buffer for all of stage 2 (OGTL: no, Hu et al. 2018; they
+    leave once the margin loss has decayed to 0)."""
 
 
 @dataclass(frozen=True)
 class OGTLLossOptions(dqfd.LossOptions):
-    """The loss (stage 1: DQfD's terms on the demonstrations; stage 2: double DQN)."""
+    """The loss (stage 1: DQfD's terms on the demonstrations; stage 2: double DQN and the
+    decaying margin loss)."""
 
-    lambda_margin_online: float | None = 0.0
-    """λ2 of the margin loss in stage 2 (OGTL: 0, "no demonstration loss", Hu et al. 2018)."""
+    margin_decay_episodes: int = 10_000
+    """Stage-2 episodes over which λ2 decays linearly from lambda_margin to lambda_margin_final
+    (half of total_episodes in the presets)."""
+    lambda_margin_final: float = 0.1
+    """λ2 after the decay. 0: stage 2 ends with no demonstration loss (Hu et al. 2018) and the
+    demonstrations leave the buffer, which unlearns the imitated policy at m5v5
+    (docs/baselines.md#ogtl); 0.1 keeps a small margin loss on the demonstrations."""
     lambda_nstep: float = 0.0
     """λ1 of the n-step TD loss (OGTL's RL is plain DQN, Hu et al. 2018: 0)."""
 
@@ -93,7 +106,8 @@ class ShapingOptions(Options):
 
 @dataclass(frozen=True)
 class OGTLConfig(dqfd.DQfDConfig):
-    """OGTL: imitation of the demonstrator, then DQN on per-agent rewards without demonstrations."""
+    """OGTL: imitation of the demonstrator, then DQN on per-agent rewards with a decaying
+    margin loss on the demonstrations."""
 
     demos: OmitArgPrefixes[OGTLDemoOptions] = dataclasses.field(default_factory=OGTLDemoOptions)
     loss: OmitArgPrefixes[OGTLLossOptions] = dataclasses.field(default_factory=OGTLLossOptions)
@@ -103,7 +117,7 @@ class OGTLConfig(dqfd.DQfDConfig):
 
 
 #: OGTL's switches on DQfD's machinery: their values come from OGTLConfig, not from DQfD's presets.
-SWITCHES = ("keep_demos", "lambda_margin_online", "lambda_nstep", "per_alpha", "eps_start", "eps_end")
+SWITCHES = ("keep_demos", "lambda_margin_online", "margin_decay_episodes", "lambda_margin_final", "lambda_nstep", "per_alpha", "eps_start", "eps_end")
 
 
 def agreement_schedule(cfg: OGTLConfig):
@@ -120,13 +134,18 @@ def agreement_schedule(cfg: OGTLConfig):
 
 def _from(make):
     def preset(env: str) -> OGTLConfig:
-        # DQfD's preset with OGTL's switches; epsilon decays over the first quarter of the budget.
+        # DQfD's preset (and budget) with OGTL's switches; ε decays over the first quarter of the
+        # budget, the margin loss over the first half.
         base = make(env)
         kw = {n: getattr(base, n) for n in dqfd.DQfDConfig.field_names() if n not in SWITCHES}
         kw["eps_decay_episodes"] = max(1, base.total_episodes // 4)
+        kw["margin_decay_episodes"] = max(1, base.total_episodes // 2)
         return OGTLConfig().replace(**kw)
 
-    preset.__doc__ = f"{make.__doc__} With OGTL's switches (no demonstrations in stage 2)."
+    preset.__doc__ = (
+        f"{make.__doc__} With OGTL's switches: uniform replay, 1-step TD, the margin loss's weight "
+        "decaying from 1 to 0.1 over the first half of the episodes."
+    )
     return preset
 
 

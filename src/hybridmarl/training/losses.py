@@ -163,3 +163,33 @@ def nstep_returns(
     ended = np.take_along_axis(e, last, axis=0)
     disc = np.where(ended, 0.0, float(gamma) ** count)
     return ret.astype(np.float32), disc.astype(np.float32), last
+
+
+# -- the baselines' scale and schedules (docs/baselines.md#scale) ------------------------------------------
+
+
+def reward_unit(rewards: np.ndarray, valid: np.ndarray) -> float:
+    """The typical size of one reward event: the median of ``|r|`` over the non-zero rewards of
+    agents in play (``valid``), or 1.0 when there is none. DQfD's Atari settings (margin 0.8,
+    Huber threshold 1, λ's) assume rewards whose events are of order 1 (clipped or log-scaled
+    scores); dividing the rewards by this unit puts any task on that scale."""
+    r = np.abs(np.asarray(rewards, np.float64)[np.asarray(valid, bool)])
+    r = r[r > 0]
+    return float(np.median(r)) if r.size else 1.0
+
+
+def linear_decay(weight: float, episodes: float, decay_episodes: int) -> float:
+    """``weight · max(0, 1 - episodes / decay_episodes)``; ``weight`` throughout if
+    ``decay_episodes <= 0``."""
+    if decay_episodes <= 0:
+        return float(weight)
+    return float(weight) * max(0.0, 1.0 - float(episodes) / float(decay_episodes))
+
+
+def greedy_agreement(q: jax.Array, legal: jax.Array, expert: jax.Array, choice: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """How often the legal greedy action equals the demonstrator's: ``(matches, count)`` over
+    the samples where ``choice`` (an agent in play with at least two legal actions). Ties
+    break toward the lowest action index, as ``argmax`` does when the policy plays."""
+    greedy = jnp.argmax(jnp.where(legal, q, -jnp.inf), axis=-1)
+    c = choice.astype(jnp.float32)
+    return jnp.sum((greedy == expert).astype(jnp.float32) * c), jnp.sum(c)
