@@ -53,7 +53,7 @@ class CriticOptions(Options):
     """Phase 2 and the critic refits of Alg. 2 (Section 4.1, Eq. 3)."""
 
     # Host-side schedules and sizes: the compiled critic fit takes its step count as an argument.
-    RUN_ONLY = frozenset({"pretrain_critic", "pretrain_samples", "e_update", "buffer_size", "critic_pretrain_steps", "critic_update_steps"})
+    RUN_ONLY = frozenset({"pretrain_critic", "pretrain_samples", "pretrain_trajectories", "e_update", "buffer_size", "critic_pretrain_steps", "critic_update_steps"})
 
     gamma: float = 0.995
     """Discount factor λ (Section 5.1)."""
@@ -63,6 +63,12 @@ class CriticOptions(Options):
     pretrain_samples: int = 100_000
     """(state, V^D) pairs simulated to pre-train the critic (Section 5.1: 100,000 trajectories;
     Section 5.3: 20,000 samples). Every state visited by A^D counts as one sample."""
+    pretrain_trajectories: int = 0
+    """If > 0: simulate this many A^D trajectories and keep ONE (s, V^D(s)) sample from each, a
+    state drawn uniformly among the trajectory's visited states, labelled with the return from
+    it to the end (Section 5.1: "100,000 trajectories are simulated to pre-train the critic";
+    Section 4.1 simulates one trajectory per sample state). Replaces pretrain_samples, which
+    keeps every visited state (correlated samples, far fewer trajectories)."""
     e_update: int = 500
     """E_Update of Alg. 2: refit the critic every this many episodes (Section 5.1: 500;
     Traffic Junction, Section 5.3: 100)."""
@@ -179,28 +185,46 @@ class HybridConfig(TrainConfig):
 
 
 def _paper(env: str) -> HybridConfig:
-    """'paper': the paper's method and settings. Combat (Section 5.1): 100,000 pre-training
-    samples, E_Update 500, SGD at 10^-3, 7 iterations of Alg. 1, 20,000 episodes (the paper
-    gives no budget). Traffic Junction (Section 5.3): the same with E_Update 100 and 20,000
-    samples, A^D = always-gas."""
+    """'paper': the paper's method and settings. Combat (Section 5.1): A^D simulated for 100,000
+    trajectories, one critic sample from each; Alg. 1 started from A^D (its input, Alg. 1 and
+    Eq. 6) with 7 iterations and Eq. 2's one-step Q; E_Update 500; SGD at 10^-3 for every
+    network; λ 0.995; 20,000 episodes in 32 games (the paper gives no budget). Traffic Junction
+    (Section 5.3): the same with E_Update 100 and 20,000 samples, A^D = always-gas."""
     if env == "traffic_junction":
         # Section 5.3: "Most hyper-parameters are the same ... E_Update = 100, and 20,000 samples".
-        return HybridConfig().replace(env=env, demonstrator="always-gas", e_update=100, pretrain_samples=20_000, buffer_size=20_000)
-    return HybridConfig().replace(env=env)
+        return HybridConfig().replace(
+            env=env, demonstrator="always-gas", e_update=100, pretrain_samples=20_000, buffer_size=20_000,
+            brd_start="demonstrator",
+        )
+    return HybridConfig().replace(env=env, pretrain_trajectories=100_000, brd_start="demonstrator")
 
 
 def _quick_paper(env: str) -> HybridConfig:
-    """'quick-paper': the paper's method (one-step Q of Eq. 2, Eq. 8, the last actor) at a
-    small budget: combat 3,000 episodes, 20,000 pre-training samples; Traffic Junction 1,500
-    episodes, 8,000 samples; critic refits every 100 episodes, Adam instead of SGD for faster
-    progress. At m5v5 it does not beat its demonstrator (docs/results.md); 'quick' adds the
-    extensions that do."""
+    """'quick-paper': 'paper' at a CPU budget, everything else as written: combat 20,000 A^D
+    trajectories (one critic sample each), 3,000 episodes in 32 games, E_Update 500, SGD at
+    10^-3; Traffic Junction 8,000 samples, 1,500 episodes in 16 games, E_Update 100. Where it
+    stands against its demonstrator: docs/results.md."""
     base = _paper(env)
     if env == "traffic_junction":
         return base.replace(
             total_episodes=1_500, num_envs=16, pretrain_samples=8_000, buffer_size=8_000,
-            critic_pretrain_steps=1_500, critic_update_steps=300, e_update=100,
-            optimizer="adam", checkpoint_every=500,
+            critic_pretrain_steps=1_500, critic_update_steps=300, checkpoint_every=500,
+        )
+    return base.replace(
+        total_episodes=3_000, num_envs=32, pretrain_trajectories=20_000, buffer_size=40_000,
+        critic_pretrain_steps=2_000, critic_update_steps=500, checkpoint_every=500,
+    )
+
+
+def _cpu_base(env: str) -> HybridConfig:
+    """The small CPU budget our extensions start from (not a preset): the paper's one-step
+    method with 20,000 pre-training samples (every visited state of A^D's episodes), Alg. 1
+    from the actor (Section 4.3), critic refits every 100 episodes and Adam."""
+    base = HybridConfig().replace(env=env)
+    if env == "traffic_junction":
+        return base.replace(
+            demonstrator="always-gas", total_episodes=1_500, num_envs=16, pretrain_samples=8_000, buffer_size=8_000,
+            critic_pretrain_steps=1_500, critic_update_steps=300, e_update=100, optimizer="adam", checkpoint_every=500,
         )
     return base.replace(
         total_episodes=3_000, num_envs=32, pretrain_samples=20_000, buffer_size=40_000,
@@ -214,7 +238,7 @@ def _quick_rollout(env: str) -> HybridConfig:
     demonstrator to the end of the episode (lookahead_steps=0: exact Q^D, the "ideal condition"
     of Eq. 6) instead of r + λ V(s'); one best-response iteration; no critic. Budget: 400
     episodes (combat) or 300 (Traffic Junction), 16 games; the rest as 'quick-paper'."""
-    return _quick_paper(env).replace(
+    return _cpu_base(env).replace(
         lookahead_steps=0, brd_start="demonstrator", brd_iterations=1,
         total_episodes=400 if env == "combat" else 300, num_envs=16, checkpoint_every=100,
         pretrain_critic=False,
@@ -234,7 +258,7 @@ def _quick(env: str) -> HybridConfig:
     needs --brd-start demonstrator (the actor start stalls into draws). Traffic Junction keeps
     K = 4, Eq. 8, the actor as continuation, 32 games and 1,500 episodes (failure 0.176
     against D's 0.959)."""
-    base = _quick_paper(env).replace(lookahead_steps=4)
+    base = _cpu_base(env).replace(lookahead_steps=4)
     if env == "traffic_junction":
         return base
     return base.replace(
@@ -246,7 +270,7 @@ def _quick(env: str) -> HybridConfig:
 def _toy(env: str) -> HybridConfig:
     """'toy', seconds: a smoke test of the whole pipeline (tests, CI): 8 episodes, 4 games,
     tiny networks, no learning."""
-    return _quick_paper(env).replace(
+    return _cpu_base(env).replace(
         total_episodes=8, num_envs=4, chunk_steps=4, pretrain_samples=64, buffer_size=512,
         critic_pretrain_steps=10, critic_update_steps=5, e_update=4, brd_iterations=2,
         actor_hidden=(16, 16, 16), critic_hidden=(16, 8, 8), checkpoint_every=4, eval_episodes=8,

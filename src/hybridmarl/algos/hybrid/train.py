@@ -96,6 +96,18 @@ def _vars(net: nets.NetState | None) -> Any:
     return None if net is None else {"params": net.params, "batch_stats": net.batch_stats}
 
 
+def one_state_per_episode(states: dict[str, np.ndarray], returns: np.ndarray, rng: np.random.Generator) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """From the rows of finished episodes ('EpisodeAssembler.add': grouped by 'episode_key'),
+    one row per episode, drawn uniformly."""
+    keys = np.asarray(states["episode_key"])
+    if keys.size == 0:
+        return states, returns
+    starts = np.flatnonzero(np.r_[True, keys[1:] != keys[:-1]])
+    lengths = np.diff(np.r_[starts, keys.size])
+    rows = starts + (rng.random(starts.size) * lengths).astype(np.int64)
+    return {k: v[rows] for k, v in states.items()}, returns[rows]
+
+
 def train(cfg: HybridConfig) -> TrainResult:
     """Train the hybrid method; prints progress and the result lines. Raises a 'UserError' for
     bad input and 'TrainingDiverged' when a loss or parameter becomes NaN/inf."""
@@ -139,14 +151,21 @@ def train(cfg: HybridConfig) -> TrainResult:
                 if cfg.actor_init == "clone":
                     st.actor = st.actor.replace(params=st.clone.params, batch_stats=st.clone.batch_stats, opt_state=learner.actor_tx.init(st.clone.params))
             # ---- Phase 2: critic pre-training (Section 4.1, Eq. 3) ------------------------------------
-            if cfg.pretrain_critic and cfg.pretrain_samples > 0 and cfg.lookahead_steps != 0:
+            per_trajectory = cfg.pretrain_trajectories > 0
+            wanted = cfg.pretrain_trajectories if per_trajectory else cfg.pretrain_samples
+            if cfg.pretrain_critic and wanted > 0 and cfg.lookahead_steps != 0:
                 demo_pool = new_pool(task, st.next_key(), cfg.num_envs)
                 asm = EpisodeAssembler(cfg.num_envs, cfg.gamma)
                 got, stats_all = 0, {}
+                pick = np.random.default_rng(np.asarray(jax.random.key_data(st.next_key())))
                 t0 = time.time()
-                while got < cfg.pretrain_samples:
+                while got < wanted:
                     demo_pool, out = learner.demo_chunk(demo_pool, _vars(st.clone))
                     states, returns, stats = asm.add(out)
+                    if per_trajectory:
+                        # One sample per trajectory (Section 5.1's "100,000 trajectories"): a
+                        # uniformly drawn visited state and its return to the end.
+                        states, returns = one_state_per_episode(states, returns, pick)
                     st.buffer.add(states, returns)
                     got += int(returns.size)
                     for k, v in stats.items():
@@ -210,4 +229,4 @@ def train(cfg: HybridConfig) -> TrainResult:
         )
 
 
-__all__ = ["ALGO", "HybridState", "train"]
+__all__ = ["ALGO", "HybridState", "one_state_per_episode", "train"]
