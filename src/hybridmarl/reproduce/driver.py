@@ -17,6 +17,7 @@ module does not import JAX (the workers do).
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import json
 import sys
@@ -102,10 +103,8 @@ class GridState:
             if r is not None:
                 self.results[key] = r
                 continue
-            try:
+            with contextlib.suppress(OSError, ValueError):
                 self.failures[key] = json.loads((d / FAILED_FILE).read_text())
-            except (OSError, ValueError):
-                pass
 
     def status(self, key: str) -> str:
         if key in self.results:

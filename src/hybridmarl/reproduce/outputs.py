@@ -198,7 +198,7 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
         "",
         rendered.markdown(),
         "",
-        *_seed_lines(doc, ("W", "R")),
+        *_seed_lines([(f"{name} {col}", e) for name, cols in doc["rows"].items() for col, e in cols.items()], ("W", "R")),
         *_test_lines(doc["paired_tests"], "W", "R"),
         *_failure_lines(summaries),
     ]
@@ -223,13 +223,13 @@ def _paired(summaries: dict[tuple[str, str], dict[str, Any]], col: str, rows: li
     }
 
 
-def _seed_lines(doc: dict[str, Any], metrics: tuple[str, str]) -> list[str]:
+def _seed_lines(entries: list[tuple[str, dict[str, Any]]], metrics: tuple[str, str]) -> list[str]:
+    """One line per done learner cell: each seed's numbers."""
     lines = []
-    for name, cols in doc["rows"].items():
-        for col, e in cols.items():
-            if e.get("status") == "done" and e.get("seeds"):
-                each = ", ".join(f"seed {p['seed']}: {metrics[0]} {_num(p[metrics[0]], 3)}, {metrics[1]} {_num(p[metrics[1]], 3)}" for p in e["per_seed"])
-                lines.append(f"- {name} {col}: {each}")
+    for name, e in entries:
+        if e.get("status") == "done" and e.get("seeds"):
+            each = ", ".join(f"seed {p['seed']}: {metrics[0]} {_num(p[metrics[0]], 3)}, {metrics[1]} {_num(p[metrics[1]], 3)}" for p in e["per_seed"])
+            lines.append(f"- {name}: {each}")
     return (["## Each seed", "", *lines, ""]) if lines else []
 
 
@@ -298,7 +298,7 @@ def table2(state: GridState) -> tuple[dict[str, Any], str, str]:
         "",
         rendered.markdown(),
         "",
-        *_seed_lines(doc, ("failure_rate", "arrivals")),
+        *_seed_lines(list(doc["rows"].items()), ("failure_rate", "arrivals")),
         *_test_lines(doc["paired_tests"], "failure rate", "arrivals"),
         *_failure_lines(summaries),
     ]

@@ -98,9 +98,9 @@ class Learner:
 
 #: Alg. 1 as the actor's start stalls into draws on the larger scenarios at the 'quick' budget;
 #: starting it from the demonstrator is what docs/reproducing.md uses at m18v20.
-_LARGE_QUICK = {"brd_start": "demonstrator"}
+_LARGE_QUICK: dict[str, object] = {"brd_start": "demonstrator"}
 #: Table 2's "w/o D" on top of any hybrid preset (as the hybrid presets 'wo-d'/'quick-wo-d').
-_WITHOUT_D = {"pretrain_critic": False, "brd_start": "actor", "lookahead_policy": "start"}
+_WITHOUT_D: dict[str, object] = {"pretrain_critic": False, "brd_start": "actor", "lookahead_policy": "start"}
 
 
 @dataclass(frozen=True)

@@ -53,10 +53,7 @@ def evaluate_policy(task: Any, module: Any, variables: Any, script: str | None, 
     from hybridmarl.training import evaluate as E
 
     key = jax.random.key(seed)
-    if script is not None:
-        policy = E.script_policy(task, script)
-    else:
-        policy = E.actor_policy(module)
+    policy = E.script_policy(task, script) if script is not None else E.actor_policy(module)
     ep = E.run_episodes(task, policy, variables, key, n)
     return task.summarize(ep), _per_episode(ep)
 
