@@ -42,15 +42,15 @@ def test_keys_are_stable_hashes_of_the_config():
     sel = Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("D", "BC"))
     g = expand(("table1",), "smoke", "paper", sel)
     # A key names a task's run directory: changing it would orphan every finished result.
-    assert {t.label: k for k, t in g.tasks.items()} == {"D-m5v5-c": "fdb96b55e68a", "BC-m5v5-c-s0": "5f262ba9691b"}
+    assert {t.label: k for k, t in g.tasks.items()} == {"D-m5v5-c": "ddeb2d3ec57c", "BC-m5v5-c-s0": "910168af1f2c"}
     # The same task asked for by a larger selection keeps its key; another setting does not.
     full = expand(("table1",), "smoke", "paper")
     assert set(g.tasks) <= set(full.tasks)
     other = expand(("table1",), "smoke", "sparcraft", sel)
     assert not set(g.tasks) & set(other.tasks)
-    d = g.tasks["fdb96b55e68a"]
+    d = g.tasks["ddeb2d3ec57c"]
     assert d.config["eval_seed"] == protocol.EVAL_SEED and d.config["enemy"] == "attack-weakest"
-    assert d.dirname == "D-m5v5-c-fdb96b55e68a"
+    assert d.dirname == "D-m5v5-c-ddeb2d3ec57c"
 
 
 def test_cross_validation_and_search_budgets():

@@ -34,7 +34,7 @@ def test_smoke_slice_fills_its_cells(smoke_slice):
     doc = json.loads((out / "table1.json").read_text())
     for row in ("D_c", "BC_c"):
         cell = doc["rows"][row]["m5v5/c"]
-        assert cell["status"] == "done" and cell["n"] == 16 and 0.0 <= cell["W"] <= 1.0
+        assert cell["status"] == "done" and cell["n"] == 8 and 0.0 <= cell["W"] <= 1.0
         assert cell["W_ci95"][0] <= cell["W"] <= cell["W_ci95"][1]
     assert doc["rows"]["D_c"]["m5v5/c"]["paper"] == {"W": 0.43, "R": -0.02}
     assert doc["rows"]["BC_c"]["m5v5/c"]["seeds"] == [0]

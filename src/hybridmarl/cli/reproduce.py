@@ -120,11 +120,14 @@ def run_reproduce(cfg: ReproduceConfig, *, live: bool | None = None) -> int:
     out = Path(cfg.out) if cfg.out else Path("runs") / f"reproduce-{cfg.budget}-{setting}"
     driver.check_output_folder(out, the_grid, force=cfg.force)
     state = driver.GridState(out, the_grid)
+    interrupted = False
     try:
         if executor is None:
             driver.prepare(state)
         else:
             driver.run_grid(state, executor, live=live)
+    except KeyboardInterrupt:
+        interrupted = True
     finally:
         # Also after an interruption: the tables show what is done so far.
         import json
@@ -134,6 +137,9 @@ def run_reproduce(cfg: ReproduceConfig, *, live: bool | None = None) -> int:
         print("\n".join(f"wrote {p}" for p in written))
     done = sum(1 for k in the_grid.tasks if state.status(k) == "done")
     print(f"{done}/{len(the_grid.tasks)} tasks done, {len(state.failures)} failed ({out})")
+    if interrupted:
+        print("interrupted: rerun the same command to continue (finished tasks are kept, training resumes)", file=sys.stderr)
+        return 130
     for key, f in state.failures.items():
         print(f"failed: {the_grid.tasks[key].label}: {f['error']} (log: {f['log']})", file=sys.stderr)
     if state.failures:

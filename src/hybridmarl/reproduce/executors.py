@@ -32,14 +32,28 @@ class ClusterError(UserError):
     """The Ray cluster named by --address cannot be reached, or Ray is not installed."""
 
 
+def compile_cache_dir() -> Path:
+    """JAX's persistent compilation cache shared by the task processes: the seeds of one row,
+    and a rerun, compile the same programs, so all but the first load them
+    (``$JAX_COMPILATION_CACHE_DIR``, else ``$XDG_CACHE_HOME/hybridmarl/jax``, else
+    ``~/.cache/hybridmarl/jax``)."""
+    given = os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if given:
+        return Path(given)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "hybridmarl" / "jax"
+
+
 def worker_env(use_gpu: bool) -> dict[str, str]:
     """Environment of a task process: JAX must not grab the whole GPU (several tasks may share
-    one), and a task without a GPU runs JAX on the CPU (the search players then use the native
-    engine)."""
+    one), a task without a GPU runs JAX on the CPU (the search players then use the native
+    engine), and compiled programs go to the persistent cache (:func:`compile_cache_dir`)."""
     env = dict(os.environ)
     env["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
     if not use_gpu:
         env["JAX_PLATFORMS"] = "cpu"
+    env["JAX_COMPILATION_CACHE_DIR"] = str(compile_cache_dir())
+    # Most of a small task's programs compile in well under JAX's default threshold of 1 s.
+    env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
     return env
 
 
@@ -191,4 +205,4 @@ def make_executor(kind: str, *, address: str | None, workers: int | None, gpus_p
     raise UserError(f"unknown --executor {kind!r} (known: auto, ray, local)")
 
 
-__all__ = ["LOG_FILE", "ClusterError", "LocalExecutor", "RayExecutor", "make_executor", "run_worker_process", "worker_env"]
+__all__ = ["LOG_FILE", "ClusterError", "compile_cache_dir", "LocalExecutor", "RayExecutor", "make_executor", "run_worker_process", "worker_env"]

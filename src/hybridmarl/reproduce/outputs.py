@@ -404,13 +404,18 @@ def write_outputs(state: GridState, manifest: dict[str, Any]) -> list[Path]:
         sections.append(_section("Table 2, Traffic Junction", table_html, md))
     if "fig3" in tables:
         png = out / "fig3.png"
-        info = fig3(state, png)
+        try:
+            info = fig3(state, png)
+        except ImportError:  # matplotlib is the optional 'plots' extra
+            info = None
+            sections.append("<h2>Fig. 3</h2><p>Not drawn: matplotlib is not installed (pip install 'hybridmarl[plots]').</p>")
+        else:
+            if info is None:
+                sections.append("<h2>Fig. 3</h2><p>No curve is done yet.</p>")
         if info is not None:
             written.append(png)
             b64 = base64.b64encode(png.read_bytes()).decode()
             sections.append(f'<h2>Fig. 3</h2><img alt="Fig. 3" src="data:image/png;base64,{b64}" style="max-width:100%">')
-        else:
-            sections.append("<h2>Fig. 3</h2><p>No curve is done yet.</p>")
     write_text_atomic(out / "report.html", _report(state, manifest, sections))
     written.append(out / "report.html")
     return written

@@ -146,17 +146,17 @@ BUDGETS: dict[str, Budget] = {
         doc=(
             "Minutes on a 2-core CPU, for tests and for checking the pipeline: every learner's "
             "'toy' preset (a few episodes, tiny networks: the numbers mean nothing), one seed, "
-            "16 combat battles and 32 Traffic Junction episodes per row, search players with "
-            "tiny deterministic budgets."
+            "8 combat battles and 16 Traffic Junction episodes per row, search players with "
+            "tiny deterministic budgets (UCT 4 traversals, ABCD 8 nodes, PGS 2 playouts)."
         ),
-        eval_battles=16,
-        eval_episodes_tj=32,
+        eval_battles=8,
+        eval_episodes_tj=16,
         seeds=(0,),
         learners=_learners("toy", "toy", "toy", large={}, wo_d_overrides=_WITHOUT_D),
         search={
-            "UCT": "traversals=16,time_ms=0",
-            "A-B": "nodes=32,time_ms=0",
-            "Profile": "playouts=8,time_ms=0",
+            "UCT": "traversals=4,time_ms=0",
+            "A-B": "nodes=8,time_ms=0",
+            "Profile": "playouts=2,time_ms=0",
         },
     ),
     "cpu": Budget(
