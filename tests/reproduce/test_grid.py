@@ -58,7 +58,7 @@ def test_cross_validation_and_search_budgets():
     by_row = {c.row: [g.tasks[k] for k in c.keys] for c in g.cells}
     assert by_row["D"][0].config["player"] == "attack-weakest" and by_row["D"][0].config["enemy"] == "attack-closest"
     assert by_row["UCT"][0].config["player"] == "uct:script=attack-weakest,traversals=500,time_ms=0"
-    assert by_row["Profile"][0].config["player"] == "pgs:time_ms=0"
+    assert by_row["Profile"][0].config["player"] == "pgs:portfolio=attack-closest+attack-weakest,time_ms=0"
     ours = by_row["Ours"]
     assert [t.config["seed"] for t in ours] == [0, 1, 2]
     assert ours[0].config["overrides"] == {"brd_start": "demonstrator"} and ours[0].config["enemy"] == "attack-closest"
@@ -86,6 +86,17 @@ def test_bad_input_is_one_line_and_exit_2(argv, message, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
     assert not out.exists()
+
+
+def test_the_driver_does_not_import_jax():
+    import subprocess
+
+    code = (
+        "import sys, hybridmarl.cli.main, hybridmarl.cli.reproduce, hybridmarl.reproduce.driver, "
+        "hybridmarl.reproduce.executors, hybridmarl.reproduce.outputs, hybridmarl.reproduce.worker; "
+        "assert 'jax' not in sys.modules, 'jax imported'"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_unreachable_ray_address_is_named(tmp_path, capsys):

@@ -44,22 +44,24 @@ def compile_cache_dir() -> Path:
 
 
 def worker_env(use_gpu: bool) -> dict[str, str]:
-    """Environment of a task process: JAX must not grab the whole GPU (several tasks may share
-    one), a task without a GPU runs JAX on the CPU (the search players then use the native
-    engine), and compiled programs go to the persistent cache (:func:`compile_cache_dir`)."""
-    env = dict(os.environ)
-    env["XLA_PYTHON_CLIENT_PREALLOCATE"] = "false"
+    """What a task process changes in its environment: JAX must not grab the whole GPU (several
+    tasks may share one), and a task without a GPU runs JAX on the CPU (the search players
+    then use the native engine). The rest of the environment is the one of the machine the task
+    runs on (:func:`start_worker_process`)."""
+    env = {"XLA_PYTHON_CLIENT_PREALLOCATE": "false"}
     if not use_gpu:
         env["JAX_PLATFORMS"] = "cpu"
-    env["JAX_COMPILATION_CACHE_DIR"] = str(compile_cache_dir())
-    # Most of a small task's programs compile in well under JAX's default threshold of 1 s.
-    env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
     return env
 
 
-def start_worker_process(task_dir: str | Path, env: dict[str, str]) -> tuple[subprocess.Popen[bytes], Any]:
-    """Start the process of one task, its output appended to the task's log; returns the
-    process and the open log (close it when the process has ended)."""
+def start_worker_process(task_dir: str | Path, changes: dict[str, str]) -> tuple[subprocess.Popen[bytes], Any]:
+    """Start the process of one task with this process's environment plus ``changes``
+    (:func:`worker_env`) and the compilation cache; its output is appended to the task's log.
+    Returns the process and the open log (close it when the process has ended)."""
+    env = {**os.environ, **changes}
+    env["JAX_COMPILATION_CACHE_DIR"] = str(compile_cache_dir())
+    # Most of a small task's programs compile in well under JAX's default threshold of 1 s.
+    env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
     log = open(Path(task_dir) / LOG_FILE, "a")  # noqa: SIM115 (the caller closes it)
     log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {sys.executable} -m hybridmarl.reproduce.worker {task_dir}\n")
     log.flush()
@@ -67,10 +69,10 @@ def start_worker_process(task_dir: str | Path, env: dict[str, str]) -> tuple[sub
     return proc, log
 
 
-def run_worker_process(task_dir: str, env: dict[str, str]) -> int:
-    """Run one task to its end in a new process. Returns the exit code (negative: killed by
-    that signal)."""
-    proc, log = start_worker_process(task_dir, env)
+def run_worker_process(task_dir: str, changes: dict[str, str]) -> int:
+    """Run one task to its end in a new process (on a Ray node: with that node's Python and
+    environment). Returns the exit code (negative: killed by that signal)."""
+    proc, log = start_worker_process(task_dir, changes)
     try:
         return proc.wait()
     finally:

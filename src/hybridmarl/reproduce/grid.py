@@ -145,7 +145,7 @@ def _search_player(row: str, demonstrator: str, options: str) -> str:
         return f"uct:script={demonstrator},{options}"
     if row == "A-B":
         return f"abcd:script={demonstrator},{options}"
-    return f"pgs:{options}"  # Profile: PGS over its script portfolio
+    return f"pgs:portfolio={P.PROFILE_PORTFOLIO},{options}"  # Profile: PGS choosing between c and w
 
 
 def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selection = Selection(), *, drop_empty: bool = False) -> Grid:

@@ -50,6 +50,10 @@ TABLE2_ROWS = ("D", "BC", "Ours w/o D", "Ours")
 #: Fig. 3's curves and panels (terminal HP reward of training episodes, demonstrator c).
 FIG3_CURVES = ("Random", "BC", "DQfD", "OGTL", "Ours")
 FIG3_SCENARIOS = ("m18v20", "m24v30")
+#: The scripts Profile (PGS) chooses among for each unit: the two demonstrators. The paper finds
+#: profile search "limited when the candidate heuristics are both sub-optimal" (Section 5.2),
+#: i.e. its candidates are c and w (SparCraft's own default portfolio is NOKDPS + KiterDPS).
+PROFILE_PORTFOLIO = "attack-closest+attack-weakest"
 #: Table 2's demonstrator.
 TJ_DEMONSTRATOR = "always-gas"
 #: Fig. 3's curves are the mean of the following this many training episodes (the paper's).
@@ -204,6 +208,6 @@ SEARCH_BUDGETS = ("fixed", "wallclock")
 
 __all__ = [
     "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
-    "PAPER_TABLE1", "PAPER_TABLE2", "SCENARIOS", "SEARCH_BUDGETS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
+    "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
     "TJ_DEMONSTRATOR", "Budget", "Learner",
 ]
