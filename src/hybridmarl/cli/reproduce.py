@@ -19,6 +19,7 @@ from __future__ import annotations
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import tyro
 
@@ -31,8 +32,8 @@ class ReproduceConfig:
     tasks, in parallel on Ray when it is installed, else one after another on this machine.
     Rerunning the same command continues where it stopped."""
 
-    what: tyro.conf.Positional[str]
-    """table1, table2, fig3 or all."""
+    what: tyro.conf.Positional[Annotated[str, tyro.conf.arg(metavar="{table1,table2,fig3,all}")]]
+    """What to reproduce: table1, table2, fig3 or all."""
     budget: str = "cpu"
     """smoke (minutes: toy presets, few battles; meaningless numbers), cpu (quick presets, 3
     seeds, 1,000 battles per row: meant for one 2-core machine) or full (the paper's presets)."""

@@ -94,10 +94,12 @@ def paired_test(a: list[float], b: list[float]) -> dict[str, Any]:
 # -- formatting -----------------------------------------------------------------------------------
 
 
-def _num(x: float | None, digits: int = 2) -> str:
+def _num(x: float | None, digits: int = 2, *, signed: bool | None = None) -> str:
+    """A number for a table: rates plain (0.43), rewards signed (+0.180, −0.02)."""
     if x is None or (isinstance(x, float) and math.isnan(x)):
         return "–"
-    s = f"{x:+.{digits}f}" if digits >= 3 else f"{x:.{digits}f}"
+    signed = digits >= 3 if signed is None else signed
+    s = f"{x:+.{digits}f}" if signed else f"{x:.{digits}f}"
     return s.replace("-", "−")
 
 
@@ -176,7 +178,7 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
                 entry.update({k: v for k, v in sm.items() if k != "per_state"})
                 doc["rows"].setdefault(name, {})[col] = entry
                 for m, digits, idx in (("W", 2, 0), ("R", 3, 1)):
-                    paper_text = f"paper {_num(paper[idx], 2)}{'*' if r in paper_best[(col, m)] else ''}"
+                    paper_text = f"paper {_num(paper[idx], 2, signed=m == 'R')}{'*' if r in paper_best[(col, m)] else ''}"
                     if sm["status"] != "done":
                         line.append((f"{_status_text(sm)} · {paper_text}", False))
                         continue
