@@ -171,7 +171,10 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
     test = doc["paired_tests"]["m5v5/c"]
     assert test["against"] == "D" and test["won"]["diff"] > 0.3 and test["won"]["p"] < 0.05
     assert [p["seed"] for p in doc["rows"]["Ours_c"]["m5v5/c"]["per_seed"]] == [0, 1]
-    # The next run does only the failed task, and clears its failure record first.
+    # A status report keeps the failure; the next run does only the failed task, and clears
+    # its failure record first.
+    assert [t.key for t in driver.prepare(state, retry_failed=False)] == []
+    assert state.status(by_row["Profile"][0].key) == "failed"
     todo = driver.prepare(state)
     assert [t.key for t in todo] == [by_row["Profile"][0].key]
     assert not (state.task_dir(by_row["Profile"][0]) / driver.FAILED_FILE).exists()

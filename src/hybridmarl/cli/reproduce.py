@@ -124,7 +124,7 @@ def run_reproduce(cfg: ReproduceConfig, *, live: bool | None = None) -> int:
     interrupted = False
     try:
         if executor is None:
-            driver.prepare(state)
+            driver.prepare(state, retry_failed=False)
         else:
             driver.run_grid(state, executor, live=live)
     except KeyboardInterrupt:

@@ -116,9 +116,10 @@ class GridState:
         return "queued"
 
 
-def prepare(state: GridState) -> list[GridTask]:
-    """Write grid.json and every task.json; return the tasks to run (not done; failed ones are
-    retried, so their failure record is cleared)."""
+def prepare(state: GridState, *, retry_failed: bool = True) -> list[GridTask]:
+    """Write grid.json and every task.json; return the tasks to run: those not done. Failed ones
+    are among them, and their failure record is cleared, unless ``retry_failed`` is False (a
+    status report, which runs nothing)."""
     grid = state.grid
     write_json_atomic(state.out / "grid.json", {
         "budget": grid.budget, "setting": grid.setting, "selection": grid.selection,
@@ -135,6 +136,8 @@ def prepare(state: GridState) -> list[GridTask]:
         if key in state.results:
             continue
         if key in state.failures:
+            if not retry_failed:
+                continue
             (d / FAILED_FILE).unlink(missing_ok=True)
             del state.failures[key]
         todo.append(t)
