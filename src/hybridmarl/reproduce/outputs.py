@@ -103,8 +103,8 @@ def _num(x: float | None, digits: int = 2, *, signed: bool | None = None) -> str
     return s.replace("-", "−")
 
 
-def _ci(ci: list[float], digits: int = 2) -> str:
-    return f"[{_num(ci[0], digits)}, {_num(ci[1], digits)}]"
+def _ci(ci: list[float], digits: int = 2, *, signed: bool | None = None) -> str:
+    return f"[{_num(ci[0], digits, signed=signed)}, {_num(ci[1], digits, signed=signed)}]"
 
 
 def _status_text(s: dict[str, Any]) -> str:
@@ -225,12 +225,18 @@ def _paired(summaries: dict[tuple[str, str], dict[str, Any]], col: str, rows: li
     }
 
 
+#: Per-seed metrics shown with a sign (rewards); rates and counts are shown plain.
+_SIGNED = frozenset({"R"})
+
+
 def _seed_lines(entries: list[tuple[str, dict[str, Any]]], metrics: tuple[str, str]) -> list[str]:
     """One line per done learner cell: each seed's numbers."""
     lines = []
     for name, e in entries:
         if e.get("status") == "done" and e.get("seeds"):
-            each = ", ".join(f"seed {p['seed']}: {metrics[0]} {_num(p[metrics[0]], 3)}, {metrics[1]} {_num(p[metrics[1]], 3)}" for p in e["per_seed"])
+            each = ", ".join(
+                f"seed {p['seed']}: " + ", ".join(f"{m.replace('_', ' ')} {_num(p[m], 3, signed=m in _SIGNED)}" for m in metrics) for p in e["per_seed"]
+            )
             lines.append(f"- {name}: {each}")
     return (["## Each seed", "", *lines, ""]) if lines else []
 
@@ -281,7 +287,7 @@ def table2(state: GridState) -> tuple[dict[str, Any], str, str]:
             continue
         out_rows.append([
             (r, False),
-            (f"{_num(s['failure_rate'], 3)} {_ci(s['failure_rate_ci95'], 3)}", r in best_fr),
+            (f"{_num(s['failure_rate'], 3, signed=False)} {_ci(s['failure_rate_ci95'], 3, signed=False)}", r in best_fr),
             (paper_text, False),
             (f"{_num(s['arrivals'], 2)} {_ci(s['arrivals_ci95'], 2)}", r in best_arr),
         ])
