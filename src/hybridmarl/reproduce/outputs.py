@@ -365,7 +365,9 @@ def fig3(state: GridState, path: Path) -> dict[str, Any] | None:
             if len(curves) > 1:
                 for c in curves:
                     ax.plot(np.arange(1, c.size + 1), c, color=color, alpha=0.2, linewidth=0.8)
-            ax.plot(x, stack.mean(0), color=color, label=f"{cell.row} ({len(curves)} seed{'s' if len(curves) > 1 else ''})")
+            # A short run (the smoke budget) has only a few points: mark them.
+            marker = "o" if length < 20 else None
+            ax.plot(x, stack.mean(0), color=color, marker=marker, label=f"{cell.row} ({len(curves)} seed{'s' if len(curves) > 1 else ''})")
             info.setdefault(col, {})[cell.row] = {"episodes": int(length + P.FIG3_WINDOW - 1), "final": float(stack.mean(0)[-1])}
             drawn = True
         ax.grid(alpha=0.3)
