@@ -371,7 +371,8 @@ def fig3(state: GridState, path: Path) -> dict[str, Any] | None:
             info.setdefault(col, {})[cell.row] = {"episodes": int(length + P.FIG3_WINDOW - 1), "final": float(stack.mean(0)[-1])}
             drawn = True
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
     if not drawn:
         plt.close(fig)
         return None
