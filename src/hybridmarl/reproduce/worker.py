@@ -3,8 +3,8 @@
 ``TASK_DIR/task.json`` says what to do (:class:`hybridmarl.reproduce.grid.GridTask`); the
 result goes to ``TASK_DIR/result.json`` (atomically), with the per-episode outcomes of the
 evaluation so that rows can be compared battle by battle. A ``train`` task trains in
-``TASK_DIR/run`` with ``resume`` on, so a killed task continues from its newest checkpoint; a
-run that already wrote its ``eval.json`` is not trained again.
+``TASK_DIR/run``, resuming the run an earlier attempt started, so a killed task continues from
+its newest checkpoint; a run that already wrote its ``eval.json`` is not trained again.
 
 Exit codes as the ``hybridmarl`` command: 0 done, 2 bad input, 3 training diverged (NaN), 1
 anything else (the traceback is in the task's log).
@@ -98,15 +98,18 @@ def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, An
     then evaluate its policy on the protocol's start states against the cross-validation enemy."""
     import hybridmarl
     from hybridmarl import algos
+    from hybridmarl.training.checkpoint import latest_checkpoint
     from hybridmarl.training.task import make_task
 
     run_dir = task_dir / "run"
     mod = algos.algo_module(c["algo"])
     env = c["env"]
     cfg = mod.PRESETS[c["preset"]](env)
+    # Continue a run an earlier attempt started (it wrote its config or a checkpoint).
+    resume = (run_dir / "config.json").is_file() or latest_checkpoint(run_dir) is not None
     fields = {
         "demonstrator": c["demonstrator"], "setting": c["setting"], "seed": c["seed"],
-        "run_dir": str(run_dir), "resume": True, "progress": False, "tensorboard": False,
+        "run_dir": str(run_dir), "resume": resume, "progress": False, "tensorboard": False,
         **c["overrides"],
     }
     if env == "combat":
