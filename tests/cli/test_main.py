@@ -44,7 +44,7 @@ def test_help_lists_every_command(capsys):
     assert out.strip() == usage()
     for name, cmd in COMMANDS.items():
         assert f"  {name}" in out and cmd.help in out, name
-    assert set(COMMANDS) == {"quickstart", "battle", "trace", "replay", "train", "eval", "demos"}
+    assert set(COMMANDS) == {"quickstart", "battle", "trace", "replay", "train", "eval", "demos", "reproduce"}
     assert main(["-h"]) == 0
     assert main([]) == EXIT_BAD_INPUT  # no command: the help, and a failing exit code
     assert "usage: hybridmarl" in capsys.readouterr().out

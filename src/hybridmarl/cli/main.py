@@ -78,6 +78,10 @@ COMMANDS: dict[str, Command] = {
         "record / inspect demonstration datasets (collect, info)",
         "hybridmarl.cli.learn:demos_command",
     ),
+    "reproduce": Command(
+        "the paper's Table 1, Table 2 and Fig. 3 as a resumable grid of runs (Ray or local)",
+        "hybridmarl.cli.reproduce:reproduce_command",
+    ),
 }
 
 

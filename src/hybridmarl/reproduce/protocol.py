@@ -1,0 +1,213 @@
+"""The reproduction protocol, stated once: what is evaluated, on which start states, with which
+budgets, and the paper's own numbers to compare with.
+
+Evaluation
+    Every reported number is an evaluation on start states drawn with :data:`EVAL_SEED`, a seed
+    that no training run, preset or model selection of this package uses (training seeds are
+    small integers; a run's own final evaluation uses ``seed + 1`` and its periodic selection
+    evaluations ``seed + 2``). Every row of one Table 1 column, and every row of Table 2, is
+    played on the same start states, so rows can be compared battle by battle (paired test).
+    Combat: the demonstrator-trained model fights the other script (the paper's
+    cross-validation: learned from c, it fights w; from w, it fights c); the D row is the
+    demonstrator script against the other script.
+
+Metrics
+    W, the win rate, with a 95 % Wilson interval; R, the mean terminal hit-points reward, with a
+    95 % Student-t interval (paper Section 5.1). A learner row is trained with every seed of the
+    budget and reports the mean over seeds and each seed; its W interval is the Wilson interval
+    of the pooled battles. Traffic Junction: the failure rate (Wilson) and arrivals per episode.
+
+Paired test
+    In each column, "Ours" is compared with the best other row (by W) on the shared start
+    states: per start state, each row's outcome is averaged over its seeds, and a two-sided
+    paired t-test on the per-state differences gives a p-value for W and for R.
+
+Search rows
+    UCT-CD, ABCD and PGS run with deterministic budgets (traversals, nodes, playouts per
+    decision, with no wall-clock limit), so a row does not depend on how fast or loaded the
+    machine is. ``--search-budget wallclock`` plays them with the paper's 40 ms per decision
+    instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+#: Seed of the start states of every reported evaluation (see the module docstring): far from
+#: the training seeds and from their ``seed + 1`` / ``seed + 2`` evaluation states.
+EVAL_SEED = 20_200_713
+
+#: The paper's combat scenarios (Table 1), in its column order.
+SCENARIOS = ("m5v5", "m30v30", "m18v20", "m24v30")
+#: Demonstrator letter -> script (Section 5.1: c = attack-closest, w = attack-weakest).
+DEMONSTRATORS = {"c": "attack-closest", "w": "attack-weakest"}
+#: The other script, which a model learned from this one fights (the paper's cross-validation).
+CROSS_ENEMY = {"attack-closest": "attack-weakest", "attack-weakest": "attack-closest"}
+#: Table 1's rows, in the paper's order.
+TABLE1_ROWS = ("D", "UCT", "A-B", "Profile", "BC", "DQfD", "OGTL", "Ours")
+#: Table 2's rows (Traffic Junction, demonstrator always-gas).
+TABLE2_ROWS = ("D", "BC", "Ours w/o D", "Ours")
+#: Fig. 3's curves and panels (terminal HP reward of training episodes, demonstrator c).
+FIG3_CURVES = ("Random", "BC", "DQfD", "OGTL", "Ours")
+FIG3_SCENARIOS = ("m18v20", "m24v30")
+#: The scripts Profile (PGS) chooses among for each unit: the two demonstrators. The paper finds
+#: profile search "limited when the candidate heuristics are both sub-optimal" (Section 5.2),
+#: i.e. its candidates are c and w (SparCraft's own default portfolio is NOKDPS + KiterDPS).
+PROFILE_PORTFOLIO = "attack-closest+attack-weakest"
+#: Table 2's demonstrator.
+TJ_DEMONSTRATOR = "always-gas"
+#: Fig. 3's curves are the mean of the following this many training episodes (the paper's).
+FIG3_WINDOW = 100
+
+TABLES = ("table1", "table2", "fig3")
+
+#: The paper's Table 1: (row, demonstrator letter) -> scenario -> (W, R). "Profile" uses both
+#: scripts; its c and w entries are its rows in the c and w halves (it fights w and c).
+PAPER_TABLE1: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
+    ("D", "c"): {"m5v5": (0.43, -0.02), "m30v30": (0.75, 0.18), "m18v20": (0.32, -0.11), "m24v30": (0.12, -0.26)},
+    ("UCT", "c"): {"m5v5": (0.93, 0.06), "m30v30": (0.88, 0.20), "m18v20": (0.40, -0.14), "m24v30": (0.13, -0.25)},
+    ("A-B", "c"): {"m5v5": (0.96, 0.07), "m30v30": (0.85, 0.21), "m18v20": (0.36, -0.17), "m24v30": (0.12, -0.24)},
+    ("Profile", "c"): {"m5v5": (0.84, 0.14), "m30v30": (0.99, 0.33), "m18v20": (0.61, 0.06), "m24v30": (0.30, -0.11)},
+    ("BC", "c"): {"m5v5": (0.42, -0.04), "m30v30": (0.76, 0.19), "m18v20": (0.28, -0.12), "m24v30": (0.10, -0.29)},
+    ("DQfD", "c"): {"m5v5": (0.85, 0.16), "m30v30": (0.90, 0.41), "m18v20": (0.47, -0.10), "m24v30": (0.23, -0.20)},
+    ("OGTL", "c"): {"m5v5": (0.89, 0.08), "m30v30": (0.93, 0.46), "m18v20": (0.48, -0.07), "m24v30": (0.26, -0.16)},
+    ("Ours", "c"): {"m5v5": (0.98, 0.18), "m30v30": (1.00, 0.51), "m18v20": (0.87, 0.24), "m24v30": (0.76, 0.19)},
+    ("D", "w"): {"m5v5": (0.61, 0.02), "m30v30": (0.13, -0.23), "m18v20": (0.03, -0.36), "m24v30": (0.00, -0.49)},
+    ("UCT", "w"): {"m5v5": (0.93, 0.01), "m30v30": (0.73, 0.09), "m18v20": (0.37, -0.19), "m24v30": (0.00, -0.36)},
+    ("A-B", "w"): {"m5v5": (0.92, 0.02), "m30v30": (0.71, 0.09), "m18v20": (0.34, -0.26), "m24v30": (0.00, -0.38)},
+    ("Profile", "w"): {"m5v5": (0.91, 0.16), "m30v30": (0.96, 0.21), "m18v20": (0.39, -0.08), "m24v30": (0.02, -0.29)},
+    ("BC", "w"): {"m5v5": (0.60, 0.02), "m30v30": (0.13, -0.23), "m18v20": (0.02, -0.37), "m24v30": (0.01, -0.49)},
+    ("DQfD", "w"): {"m5v5": (0.89, 0.08), "m30v30": (0.81, 0.17), "m18v20": (0.30, -0.14), "m24v30": (0.03, -0.37)},
+    ("OGTL", "w"): {"m5v5": (0.97, 0.09), "m30v30": (0.78, 0.15), "m18v20": (0.36, -0.12), "m24v30": (0.06, -0.38)},
+    ("Ours", "w"): {"m5v5": (0.99, 0.19), "m30v30": (0.91, 0.22), "m18v20": (0.71, 0.16), "m24v30": (0.58, 0.03)},
+}
+
+#: The paper's Table 2: row -> failure rate (its "FR (%)" row reads 0.72, 0.72, 0.35, 0.19,
+#: i.e. fractions). The paper reports no arrivals.
+PAPER_TABLE2: dict[str, float] = {"D": 0.72, "BC": 0.72, "Ours w/o D": 0.35, "Ours": 0.19}
+
+
+@dataclass(frozen=True)
+class Learner:
+    """How a learner row is trained: ``hybridmarl.train(PRESETS[preset](env).replace(**overrides))``
+    of ``hybridmarl.algos.algo_module(algo)``, with the task's fields (scenario, demonstrator,
+    enemy, setting, seed, run directory) set by the grid."""
+
+    algo: str
+    preset: str
+    overrides: dict[str, object] = field(default_factory=dict)
+    #: Extra overrides for combat scenarios other than m5v5 (the larger battles).
+    large_overrides: dict[str, object] = field(default_factory=dict)
+
+
+#: Alg. 1 as the actor's start stalls into draws on the larger scenarios at the 'quick' budget;
+#: starting it from the demonstrator is what docs/reproducing.md uses at m18v20.
+_LARGE_QUICK: dict[str, object] = {"brd_start": "demonstrator"}
+#: Table 2's "w/o D" on top of any hybrid preset (as the hybrid presets 'wo-d'/'quick-wo-d').
+_WITHOUT_D: dict[str, object] = {"pretrain_critic": False, "brd_start": "actor", "lookahead_policy": "start"}
+
+
+@dataclass(frozen=True)
+class Budget:
+    """What every cell of the grid gets at one budget.
+
+    - ``eval_battles``: combat battles per evaluated policy (all rows of a column share them);
+      ``eval_episodes_tj``: Traffic Junction episodes per row.
+    - ``seeds``: training seeds of each learner row (Table 1, Table 2, Fig. 3).
+    - ``learners``: row -> :class:`Learner` (algo, preset, overrides).
+    - ``search``: search row -> player options (deterministic budgets, no wall clock).
+    - ``wallclock_search``: the same rows under the paper's 40 ms per decision.
+    """
+
+    name: str
+    doc: str
+    eval_battles: int
+    eval_episodes_tj: int
+    seeds: tuple[int, ...]
+    learners: dict[str, Learner]
+    search: dict[str, str]
+    wallclock_search: dict[str, str] = field(
+        default_factory=lambda: {"UCT": "time_ms=40", "A-B": "time_ms=40", "Profile": "time_ms=40"}
+    )
+
+
+def _learners(preset: str, hybrid: str, hybrid_wo_d: str, *, large: dict[str, object], wo_d_overrides: dict[str, object]) -> dict[str, Learner]:
+    return {
+        "BC": Learner("bc", preset),
+        "DQfD": Learner("dqfd", preset),
+        "OGTL": Learner("ogtl", preset),
+        "Ours": Learner("hybrid", hybrid, large_overrides=large),
+        "Ours w/o D": Learner("hybrid", hybrid_wo_d, overrides=wo_d_overrides),
+        # Fig. 3's "Random": the network starts from random weights, no demonstrations.
+        "Random": Learner("hybrid", hybrid_wo_d, overrides=wo_d_overrides),
+    }
+
+
+#: The three budgets, by name.
+BUDGETS: dict[str, Budget] = {
+    "smoke": Budget(
+        name="smoke",
+        doc=(
+            "Minutes on a 2-core CPU, for tests and for checking the pipeline: every learner's "
+            "'toy' preset (a few episodes, tiny networks: the numbers mean nothing), one seed, "
+            "8 combat battles and 16 Traffic Junction episodes per row, search players with "
+            "tiny deterministic budgets (UCT 4 traversals, ABCD 8 nodes, PGS 2 playouts)."
+        ),
+        eval_battles=8,
+        eval_episodes_tj=16,
+        seeds=(0,),
+        learners=_learners("toy", "toy", "toy", large={}, wo_d_overrides=_WITHOUT_D),
+        search={
+            "UCT": "traversals=4,time_ms=0",
+            "A-B": "nodes=8,time_ms=0",
+            "Profile": "playouts=2,time_ms=0",
+        },
+    ),
+    "cpu": Budget(
+        name="cpu",
+        doc=(
+            "Meant to fill every cell on one 2-core CPU machine: the learners' 'quick' presets "
+            "(Ours: 'quick', with --brd-start demonstrator beyond m5v5; w/o D and Random: "
+            "'quick-wo-d'), seeds 0, 1, 2, 1,000 battles (Traffic Junction: 1,000 episodes) per "
+            "row, search players with fixed budgets per decision (UCT 500 traversals, ABCD 2,000 "
+            "nodes, PGS its full I=1, R=0 improvement pass)."
+        ),
+        eval_battles=1000,
+        eval_episodes_tj=1000,
+        seeds=(0, 1, 2),
+        learners=_learners("quick", "quick", "quick-wo-d", large=_LARGE_QUICK, wo_d_overrides={}),
+        search={
+            "UCT": "traversals=500,time_ms=0",
+            "A-B": "nodes=2000,time_ms=0",
+            "Profile": "time_ms=0",
+        },
+    ),
+    "full": Budget(
+        name="full",
+        doc=(
+            "The paper's scale: the learners' 'paper' presets (Section 5.1 hyper-parameters; "
+            "hybrid 'wo-d' for w/o D and Random), seeds 0, 1, 2, 1,000 battles (Traffic "
+            "Junction: 1,000 episodes) per row, search players with SparCraft's sample-config "
+            "budgets as fixed counts (UCT 5,000 traversals, ABCD 20,000 nodes, PGS I=1, R=0). "
+            "Days of CPU time; meant for a cluster (--address)."
+        ),
+        eval_battles=1000,
+        eval_episodes_tj=1000,
+        seeds=(0, 1, 2),
+        learners=_learners("paper", "paper", "wo-d", large={}, wo_d_overrides={}),
+        search={
+            "UCT": "traversals=5000,time_ms=0",
+            "A-B": "nodes=20000,time_ms=0",
+            "Profile": "time_ms=0",
+        },
+    ),
+}
+
+#: How the search rows are budgeted: fixed counts (the default) or the paper's wall clock.
+SEARCH_BUDGETS = ("fixed", "wallclock")
+
+__all__ = [
+    "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
+    "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
+    "TJ_DEMONSTRATOR", "Budget", "Learner",
+]

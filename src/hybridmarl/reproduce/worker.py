@@ -1,0 +1,193 @@
+"""One task of the grid, in its own process: ``python -m hybridmarl.reproduce.worker TASK_DIR``.
+
+``TASK_DIR/task.json`` says what to do (:class:`hybridmarl.reproduce.grid.GridTask`); the
+result goes to ``TASK_DIR/result.json`` (atomically), with the per-episode outcomes of the
+evaluation so that rows can be compared battle by battle. A ``train`` task trains in
+``TASK_DIR/run``, resuming the run an earlier attempt started, so a killed task continues from
+its newest checkpoint; a run that already wrote its ``eval.json`` is not trained again.
+
+Exit codes as the ``hybridmarl`` command: 0 done, 2 bad input, 3 training diverged (NaN), 1
+anything else (the traceback is in the task's log).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+#: The task description and the result of a task directory.
+TASK_FILE = "task.json"
+RESULT_FILE = "result.json"
+
+
+def _spec(c: dict[str, Any]) -> Any:
+    """The evaluation ``TaskSpec`` of a task config (the cross-validation enemy in combat)."""
+    from hybridmarl.settings import get_setting
+    from hybridmarl.training.task import TaskSpec
+
+    setting = get_setting(c["setting"])
+    if c["env"] == "combat":
+        return TaskSpec(env="combat", scenario=c["scenario"], enemy=c["enemy"], setting=setting.name)
+    return TaskSpec(env="traffic_junction", p_arrive=setting.p_arrive, setting=setting.name)
+
+
+def _per_episode(ep: dict[str, Any]) -> dict[str, list[float]]:
+    """The per-episode outcomes a table needs (combat: won, R; Traffic Junction: failed,
+    arrivals), as plain lists."""
+    keys = ("won", "terminal_hp_reward") if "won" in ep else ("failed", "arrivals")
+    return {k: [float(x) for x in ep[k]] for k in keys}
+
+
+def evaluate_policy(task: Any, module: Any, variables: Any, script: str | None, n: int, seed: int) -> tuple[dict[str, Any], dict[str, list[float]]]:
+    """The protocol's evaluation (``training.evaluate``) of an actor or a script on the start
+    states of ``seed``: its summary and the per-episode outcomes."""
+    import jax
+
+    from hybridmarl.training import evaluate as E
+
+    key = jax.random.key(seed)
+    policy = E.script_policy(task, script) if script is not None else E.actor_policy(module)
+    ep = E.run_episodes(task, policy, variables, key, n)
+    return task.summarize(ep), _per_episode(ep)
+
+
+def evaluate_search(task: Any, player: str, n: int, seed: int) -> tuple[dict[str, Any], dict[str, list[float]]]:
+    """A search player on the start states of ``seed`` (those of :func:`evaluate_policy`), as
+    ``training.evaluate.evaluate_player`` plays it, keeping each battle's outcome."""
+    import jax
+    import numpy as np
+
+    from hybridmarl.engine.rules import hp_sums
+    from hybridmarl.search import make_player
+    from hybridmarl.search.runner import play_game_with_players
+
+    k_reset, _ = jax.random.split(jax.random.key(seed))
+    _, states = jax.jit(jax.vmap(task.reset))(jax.random.split(k_reset, n))
+    ours, enemy = make_player(player), make_player(task.spec.enemy)
+    ep: dict[str, list[float]] = {k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")}
+    stats: list[dict[str, Any]] = []
+    t0 = time.time()
+    for i in range(n):
+        start = jax.tree.map(lambda a, i=i: a[i], states)
+        g = play_game_with_players(start.game, task.env.rules, ours, enemy, seed=seed + i)
+        hp = np.asarray(hp_sums(g.final_state))
+        norm = max(int(start.init_hp[0]), 1)
+        ep["won"].append(float(g.winner == 0))
+        ep["lost"].append(float(g.winner == 1))
+        ep["draw"].append(float(g.winner not in (0, 1)))
+        ep["terminal_hp_reward"].append(float(np.float32(hp[0] - hp[1]) / np.float32(norm)))
+        ep["steps"].append(float(len(g.decisions[0])))
+        stats += [d.as_dict() for d in g.decisions[0]]
+        print(f"battle {i + 1}/{n}: W so far {np.mean(ep['won']):.3f} ({time.time() - t0:.0f} s)", flush=True)
+    summary = task.summarize({k: np.asarray(v) for k, v in ep.items()})
+    for name in ("ms", "traversals", "nodes", "playouts"):
+        values = [float(s[name]) for s in stats if name in s]
+        summary[f"{name}_per_decision"] = float(np.mean(values)) if values else None
+    return summary, _per_episode({k: np.asarray(v) for k, v in ep.items()})
+
+
+def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, Any], dict[str, list[float]], dict[str, Any]]:
+    """Train the learner of ``c`` with its seed in ``task_dir/run`` (resuming a killed run),
+    then evaluate its policy on the protocol's start states against the cross-validation enemy."""
+    import hybridmarl
+    from hybridmarl import algos
+    from hybridmarl.training.checkpoint import latest_checkpoint
+    from hybridmarl.training.task import make_task
+
+    run_dir = task_dir / "run"
+    mod = algos.algo_module(c["algo"])
+    env = c["env"]
+    cfg = mod.PRESETS[c["preset"]](env)
+    # Continue a run an earlier attempt started (it wrote its config or a checkpoint).
+    resume = (run_dir / "config.json").is_file() or latest_checkpoint(run_dir) is not None
+    fields = {
+        "demonstrator": c["demonstrator"], "setting": c["setting"], "seed": c["seed"],
+        "run_dir": str(run_dir), "resume": resume, "progress": False, "tensorboard": False,
+        **c["overrides"],
+    }
+    if env == "combat":
+        fields.update(scenario=c["scenario"], enemy=c["enemy"])
+    cfg = cfg.replace(**fields)
+    if (run_dir / "eval.json").is_file():
+        print(f"{run_dir}: training finished earlier (eval.json), evaluating it", flush=True)
+    else:
+        hybridmarl.train(cfg)
+    policy = hybridmarl.load_policy(run_dir)
+    # The run's own task (scenario, setting), against the cross-validation enemy.
+    spec = dataclasses.replace(policy.spec, enemy=c["enemy"]) if env == "combat" else policy.spec
+    summary, per_episode = evaluate_policy(make_task(spec), policy.module, policy.variables, None, c["n"], c["eval_seed"])
+    own = json.loads((run_dir / "eval.json").read_text())
+    training = {k: own.get(k) for k in ("episodes", "wall_s", "cpu_s") if k in own}
+    training["weights"] = policy.weights
+    return summary, per_episode, training
+
+
+def run_task(task_dir: Path) -> dict[str, Any]:
+    """Do the task described in ``task_dir/task.json`` and write its ``result.json``."""
+    from hybridmarl import __version__
+    from hybridmarl.io import write_json_atomic
+    from hybridmarl.training.task import make_task
+
+    task = json.loads((task_dir / TASK_FILE).read_text())
+    kind, c = task["kind"], task["config"]
+    wall0, cpu0 = time.time(), time.process_time()
+    training: dict[str, Any] | None = None
+    if kind == "train":
+        summary, per_episode, training = train_then_evaluate(c, task_dir)
+    elif kind == "search":
+        summary, per_episode = evaluate_search(make_task(_spec(c)), c["player"], c["n"], c["eval_seed"])
+    elif kind == "script":
+        summary, per_episode = evaluate_policy(make_task(_spec(c)), None, None, c["player"], c["n"], c["eval_seed"])
+    else:
+        raise ValueError(f"unknown task kind {kind!r}")
+    result = {
+        "key": task["key"], "kind": kind, "config": c, "summary": summary, "per_episode": per_episode,
+        "training": training, "wall_s": time.time() - wall0, "cpu_s": time.process_time() - cpu0,
+        "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "version": __version__,
+    }
+    write_json_atomic(task_dir / RESULT_FILE, result)
+    return result
+
+
+def _exit_with_parent() -> None:
+    """End this process when the process that started it is gone (a killed driver or Ray
+    worker), so no task keeps running unseen; its checkpoints stay for the next run."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            time.sleep(2.0)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="exit-with-parent").start()
+
+
+def main(argv: list[str] | None = None) -> int:
+    from hybridmarl.errors import EXIT_BAD_INPUT, EXIT_DIVERGED, TrainingDiverged, UserError
+
+    _exit_with_parent()
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m hybridmarl.reproduce.worker TASK_DIR", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        run_task(Path(args[0]))
+    except UserError as e:
+        print(f"hybridmarl: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except TrainingDiverged as e:
+        print(f"hybridmarl: training stopped: {e}", file=sys.stderr)
+        return EXIT_DIVERGED
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
