@@ -155,7 +155,8 @@ class RayExecutor:
         self.address, self.workers, self.gpus = address, workers, gpus_per_train_task
 
     def _init(self) -> Any:
-        import ray
+        import ray  # pyright: ignore[reportMissingImports]  # the optional 'scale' extra
+
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": "ERROR"}
         if not self.address and self.workers:
             kwargs["num_cpus"] = self.workers
