@@ -37,6 +37,13 @@ def _umask() -> int:
     return mask
 
 
+def grant_umask(path: str | Path, *, directory: bool = False) -> None:
+    """Give a temporary file or directory (mkstemp/mkdtemp: 0600/0700) the permissions a plain
+    ``open``/``mkdir`` would have given it under the user's umask, before it is renamed into
+    place."""
+    os.chmod(path, (0o777 if directory else 0o666) & ~_umask())
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | Path, mode: str = "w") -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; on a clean exit it is synced and renamed onto

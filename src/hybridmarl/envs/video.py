@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from hybridmarl.io import grant_umask
+
 __all__ = ["mp4_supported", "write_video"]
 
 
@@ -81,7 +83,7 @@ def write_video(frames: Sequence[np.ndarray], path: str | os.PathLike[str], fps:
 
             ims: list[Any] = list(checked)
             imageio.mimwrite(tmp, ims, fps=fps)
-        os.chmod(tmp, 0o644)  # mkstemp makes it 0600; a video is meant to be shared
+        grant_umask(tmp)  # mkstemp makes it 0600; the user's umask decides, as for any file
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -32,6 +32,7 @@ import numpy as np
 from safetensors.numpy import load_file, save_file
 
 from hybridmarl.errors import UserError
+from hybridmarl.io import grant_umask
 
 CKPT_DIR = "checkpoints"
 #: Name of the checkpoint holding the best periodically evaluated policy (``training.config.PeriodicEval``).
@@ -104,7 +105,9 @@ def save_checkpoint(
     final = root / (name or checkpoint_name(step))
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp_{final.name}_", dir=root))
     try:
+        grant_umask(tmp, directory=True)
         save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
+        grant_umask(tmp / "arrays.safetensors")  # safetensors writes it private
         pause_point("checkpoint")
         doc = dict(meta)
         doc["format_version"] = FORMAT_VERSION

@@ -178,6 +178,8 @@ def save_dataset(ds: Dataset, path: str | Path) -> Path:
 
     from safetensors.numpy import save_file
 
+    from hybridmarl.io import grant_umask
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
@@ -185,6 +187,7 @@ def save_dataset(ds: Dataset, path: str | Path) -> Path:
     try:
         arrays = {k: np.asarray(v).copy(order="C") for k, v in ds.arrays.items()}
         save_file(arrays, tmp, metadata={"hybridmarl": json.dumps(ds.meta, sort_keys=True)})
+        grant_umask(tmp)  # safetensors writes it private
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
