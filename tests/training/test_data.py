@@ -177,7 +177,7 @@ def test_checkpoint_round_trip_and_pruning(tmp_path):
     # A directory without meta.json (a crash mid-write under a final name) is ignored.
     (tmp_path / "checkpoints" / "ckpt_000000009").mkdir()
     assert C.latest_checkpoint(tmp_path).name == "ckpt_000000004"
-    with pytest.raises(C.CheckpointError, match="missing meta.json"):
+    with pytest.raises(C.CheckpointError, match="meta.json' not found"):
         C.load_checkpoint(tmp_path / "checkpoints" / "ckpt_000000009")
     with pytest.raises(ValueError, match="shape"):
         unflatten_named({"w": jnp.zeros((3, 3))}, {"w": np.zeros((2, 3), np.float32)})
