@@ -123,6 +123,29 @@ class Learner:
         critic, total = jax.lax.fori_loop(0, num_steps, one, (critic, jnp.zeros((), jnp.float32)))
         return critic, total / jnp.maximum(num_steps, 1).astype(jnp.float32)
 
+    # Eq. 8 (or the cross-entropy toward ã_g): 'actor_steps' SGD steps on the rows of weight 1
+    # (batch norm's statistics over those rows only); no update when no row has weight.
+    def _update_actor(self, actor: nets.NetState, x: jax.Array, legal: jax.Array, best: jax.Array, adv: jax.Array, w: jax.Array, *, actor_steps: int, target: str):
+        mod, tx = self.actor_mod, self.actor_tx
+        any_w = jnp.any(w)
+        bn_mask = jnp.where(any_w, w, jnp.ones_like(w))
+
+        def loss_fn(params, batch_stats):
+            logits, bs = nets.apply_train(mod, params, batch_stats, x, mask=bn_mask)
+            if target == "best":
+                loss = bc_loss(logits, best, legal, w)
+            else:
+                loss = actor_loss(logits, adv, legal, w)
+            return loss, (bs, None)
+
+        def sgd_step(_, c):
+            net, _ = c
+            net, loss, _ = nets.sgd_step(net, tx, loss_fn)
+            return net, loss
+
+        new, loss = jax.lax.fori_loop(0, actor_steps, sgd_step, (actor, jnp.zeros((), jnp.float32)))
+        return jax.tree.map(lambda a, b: jnp.where(any_w, a, b), new, actor), loss
+
     # Phase 3, K steps of Alg. 2 for all B games.
     def brd_q_fn(self, actor: Any, critic_vars: Any, clone_vars: Any, *, gamma: float, lookahead: int, continuation: str):
         """Alg. 1's Q estimate for B games: ``lookahead`` simulated steps (1: Eq. 2's one step;
@@ -145,7 +168,7 @@ class Learner:
         return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, policy_fn=policy, batch_step_fn=batch_step_fn)
 
     def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, work_batch: int):
-        task, b, mod, tx = self.task, self.b, self.actor_mod, self.actor_tx
+        task, b, mod = self.task, self.b, self.actor_mod
 
         def act(actor, key, states, obs, legal):
             q_fn = self.brd_q_fn(actor, critic_vars, clone_vars, gamma=gamma, lookahead=lookahead, continuation=continuation)
@@ -159,41 +182,13 @@ class Learner:
             adv = advantages(res.q, legal)
             weight = res.q_valid & (jnp.sum(legal, -1) >= 2)
             flat_w = weight.reshape(-1)
-            any_w = jnp.any(flat_w)
-            bn_mask = jnp.where(any_w, flat_w, jnp.ones_like(flat_w))
-
-            # Eq. 8: theta <- theta + eta * sum_a grad log p(a|O) A(s, a), shared actor.
-            def loss_fn(params, batch_stats):
-                logits, bs = nets.apply_train(mod, params, batch_stats, obs.reshape(b * n, -1), mask=bn_mask)
-                if target == "best":
-                    loss = bc_loss(logits, res.actions.reshape(b * n), legal.reshape(b * n, na), flat_w)
-                else:
-                    loss = actor_loss(logits, adv.reshape(b * n, na), legal.reshape(b * n, na), flat_w)
-                return loss, (bs, None)
-
-            def sgd_step(_, c):
-                net, _ = c
-                net, loss, _ = nets.sgd_step(net, tx, loss_fn)
-                return net, loss
-
-            new, loss = jax.lax.fori_loop(0, actor_steps, sgd_step, (actor, jnp.zeros((), jnp.float32)))
-            actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
+            actor, loss = self._update_actor(
+                actor, obs.reshape(b * n, -1), legal.reshape(b * n, na), res.actions.reshape(b * n), adv.reshape(b * n, na),
+                flat_w, actor_steps=actor_steps, target=target,
+            )
             # Perform the updated actor's legal argmax (Alg. 2).
             actions = nets.actor_actions(mod, actor, obs, legal)
-            wf = weight.astype(jnp.float32)
-            nw = jnp.maximum(jnp.sum(wf), 1.0)
-            aux = {
-                "actor_loss": loss,
-                "brd_sweeps": res.sweeps.astype(jnp.float32),
-                "brd_visits": res.evaluated.astype(jnp.float32) / b,
-                "brd_simulated": res.simulated.astype(jnp.float32) / b,
-                "brd_changes": jnp.mean(res.changes.astype(jnp.float32)),
-                "q_gain": jnp.nanmean(res.q_final - res.q_init),
-                "q_final": jnp.nanmean(res.q_final),
-                "adv_max": jnp.sum(jnp.max(adv, -1) * wf) / nw,
-                "agree": jnp.sum((a_actor == res.actions) * wf) / nw,
-                "deciders": jnp.sum(wf) / b,
-            }
+            aux = step_aux(loss, res.sweeps, res.evaluated, res.simulated, res.changes, res.q_init, res.q_final, adv, a_actor, res.actions, weight)
             return actions, actor, aux
 
         pool, actor, out = pool_steps(task, act, pool, actor, steps)
@@ -217,52 +212,22 @@ class Learner:
                         *, actor_steps: int, target: str):
         """Eq. 7, the actor's update (Eq. 8, or cross-entropy toward ã_g) on the gathered rows of
         the agents with a choice, the updated actor's legal argmax, the env step and resets."""
-        task, mod, tx = self.task, self.actor_mod, self.actor_tx
+        task, mod = self.task, self.actor_mod
         b, n, na = legal.shape
         obs = pool.obs
         adv = advantages(brd["q"], legal)
         weight = brd["q_valid"] & (jnp.sum(legal, -1) >= 2)
-        any_w = jnp.any(valid)
-        w = valid
-        bn_mask = jnp.where(any_w, w, jnp.ones_like(w))
-        x = obs.reshape(b * n, -1)[rows]
-        lg = legal.reshape(b * n, na)[rows]
-
-        def loss_fn(params, batch_stats):
-            logits, bs = nets.apply_train(mod, params, batch_stats, x, mask=bn_mask)
-            if target == "best":
-                loss = bc_loss(logits, brd["actions"].reshape(b * n)[rows], lg, w)
-            else:
-                loss = actor_loss(logits, adv.reshape(b * n, na)[rows], lg, w)
-            return loss, (bs, None)
-
-        def sgd_step(_, c):
-            net, _ = c
-            net, loss, _ = nets.sgd_step(net, tx, loss_fn)
-            return net, loss
-
-        new, loss = jax.lax.fori_loop(0, actor_steps, sgd_step, (actor, jnp.zeros((), jnp.float32)))
-        actor = jax.tree.map(lambda x, y: jnp.where(any_w, x, y), new, actor)
+        actor, loss = self._update_actor(
+            actor, obs.reshape(b * n, -1)[rows], legal.reshape(b * n, na)[rows], brd["actions"].reshape(b * n)[rows],
+            adv.reshape(b * n, na)[rows], valid, actor_steps=actor_steps, target=target,
+        )
         actions = nets.actor_actions(mod, actor, obs, legal)
         # The env step and the resets of 'pool_steps'.
         obs2, s2, r, d, info = jax.vmap(task.step)(jax.random.split(k_step, b), pool.states, actions)
         stats = jax.vmap(task.episode_stats)(s2, info)
         obs_r, s_r = jax.vmap(task.reset)(jax.random.split(k_reset, b))
         pool2 = Pool(states=select_tree(d, s_r, s2), obs=select_tree(d, obs_r, obs2), key=key_data)
-        wf = weight.astype(jnp.float32)
-        nw = jnp.maximum(jnp.sum(wf), 1.0)
-        aux = {
-            "actor_loss": loss,
-            "brd_sweeps": brd["sweeps"],
-            "brd_visits": brd["evaluated"] / b,
-            "brd_simulated": brd["simulated"] / b,
-            "brd_changes": jnp.mean(brd["changes"].astype(jnp.float32)),
-            "q_gain": jnp.nanmean(brd["q_final"] - brd["q_init"]),
-            "q_final": jnp.nanmean(brd["q_final"]),
-            "adv_max": jnp.sum(jnp.max(adv, -1) * wf) / nw,
-            "agree": jnp.sum((a_actor == brd["actions"]) * wf) / nw,
-            "deciders": jnp.sum(wf) / b,
-        }
+        aux = step_aux(loss, brd["sweeps"], brd["evaluated"], brd["simulated"], brd["changes"], brd["q_init"], brd["q_final"], adv, a_actor, brd["actions"], weight)
         out = {"state": pool.states, "reward": r, "done": d, "stats": stats, "aux": aux}
         return pool2, actor, out
 
@@ -300,6 +265,25 @@ class Learner:
             timing["steps"] = timing.get("steps", 0.0) + 1
         stacked = jax.tree.map(lambda *xs: np.stack(xs), *outs)
         return pool, actor, stacked
+
+
+def step_aux(loss, sweeps, evaluated, simulated, changes, q_init, q_final, adv, a_actor, actions, weight) -> dict[str, jax.Array]:
+    """The per-step diagnostics of Alg. 1 and the actor update that 'train.csv' logs."""
+    b = weight.shape[0]
+    wf = weight.astype(jnp.float32)
+    nw = jnp.maximum(jnp.sum(wf), 1.0)
+    return {
+        "actor_loss": loss,
+        "brd_sweeps": jnp.asarray(sweeps, jnp.float32),
+        "brd_visits": jnp.asarray(evaluated, jnp.float32) / b,
+        "brd_simulated": jnp.asarray(simulated, jnp.float32) / b,
+        "brd_changes": jnp.mean(changes.astype(jnp.float32)),
+        "q_gain": jnp.nanmean(q_final - q_init),
+        "q_final": jnp.nanmean(q_final),
+        "adv_max": jnp.sum(jnp.max(adv, -1) * wf) / nw,
+        "agree": jnp.sum((a_actor == actions) * wf) / nw,
+        "deciders": jnp.sum(wf) / b,
+    }
 
 
 #: Simulated steps that stand for "to the end of the episode" (``lookahead_steps=0``); the Q
