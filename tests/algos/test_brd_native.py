@@ -12,7 +12,7 @@ import pytest
 from hybridmarl.algos.hybrid import brd_native as BN
 from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
 from hybridmarl.algos.hybrid.config import PRESETS
-from hybridmarl.envs.combat.native import critic_features, env_step
+from hybridmarl.envs.combat.native import critic_features, env_step, state_arrays
 from hybridmarl.training import networks as nets
 from hybridmarl.training.task import make_task
 
@@ -70,7 +70,7 @@ def test_env_step_equals_combat_step(midgame):
     acts = cand[:, 0]
     _, s2, r, d, _ = jax.vmap(task.step)(jax.random.split(jax.random.key(0), b), states, jnp.asarray(acts))
     env = task.env
-    batch = BN.NativeBRD.batch_arrays(jax.device_get(states))
+    batch = state_arrays(jax.device_get(states))
     fields = batch["fields"]
     rules = env.rules
     walk = np.array(rules.walkable, np.bool_)
@@ -109,14 +109,14 @@ def test_simulated_returns_equal_jax(midgame, steps):
     )
     ref = np.asarray(jax.jit(q_fn)(jax.random.split(jax.random.key(1), b), states, jnp.asarray(cand)))
     sim = BN.NativeBRD(task, gamma=cfg.gamma, iterations=7, lookahead=steps, continuation="attack-closest")
-    ret, _, _, _ = sim.simulate(sim.batch_arrays(jax.device_get(states)), np.repeat(np.arange(b), na), cand.reshape(b * na, n))
+    ret, _, _, _ = sim.simulate(state_arrays(jax.device_get(states)), np.repeat(np.arange(b), na), cand.reshape(b * na, n))
     np.testing.assert_array_equal(ret.reshape(b, na), ref)
 
 
 def test_critic_features_and_mlp(midgame):
     cfg, task, states, _, _ = midgame
     ref = np.asarray(jax.vmap(task.value_features)(states))
-    batch = BN.NativeBRD.batch_arrays(jax.device_get(states))
+    batch = state_arrays(jax.device_get(states))
     env = task.env
     got = np.zeros_like(ref)
     scratch = np.zeros((2, env.num_slots), np.float32)

@@ -127,13 +127,12 @@ def run_scripted_episodes_native(task: Task, script: str, key: jax.Array, n: int
     ``envs.combat.native.play_scripted_episodes``."""
     import numba
 
-    from hybridmarl.algos.hybrid.brd_native import NativeBRD
     from hybridmarl.engine.native.kernels import SCRIPT_CODES
-    from hybridmarl.envs.combat.native import play_scripted_episodes
+    from hybridmarl.envs.combat.native import play_scripted_episodes, state_arrays
 
     k_reset, _ = jax.random.split(key)
     _, states = _reset_fn(task, n)(k_reset)
-    batch = NativeBRD.batch_arrays(jax.device_get(states))
+    batch = state_arrays(jax.device_get(states))
     env, rules = task.env, task.env.rules
     won, lost = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
     steps, ret, terminal = np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32)

@@ -19,6 +19,7 @@ demonstrator script playing the continuation (the ``quick`` preset), against a s
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,6 +33,7 @@ from hybridmarl.envs.combat.native import (
     critic_features,
     env_step,
     script_env_actions,
+    state_arrays,
 )
 
 
@@ -245,39 +247,22 @@ class NativeBRD:
             )
         return ret, disc, ended, feats
 
-    @staticmethod
-    def batch_arrays(states: Any) -> dict[str, np.ndarray]:
-        """The kernel's view of a batch of ``CombatState`` (host arrays)."""
-        g = states.game
-
-        def arr(a: Any) -> np.ndarray:
-            return np.array(a, dtype=np.int32, order="C", copy=True)
-
-        fields = tuple(arr(getattr(g, f)) for f in ("utype", "uid", "x", "y", "px", "py", "t_act", "last", "hp", "t_move", "t_attack"))
-        return {
-            "fields": fields,  # type: ignore[dict-item]
-            "time": arr(g.time), "turn": arr(g.turn), "stale": arr(g.stale), "prev_hp_sum": arr(g.prev_hp_sum),
-            "init_hp0": arr(np.asarray(states.init_hp)[:, 0]),
-        }
-
     def q_values(self, batch: dict[str, np.ndarray], games: np.ndarray, joint: np.ndarray, value: Any) -> tuple[np.ndarray, float, float]:
         """Eq. 2's Q (or its K-step form) of each pair; and the seconds spent simulating and in
         the critic."""
-        import time as _time
-
-        t0 = _time.perf_counter()
+        t0 = time.perf_counter()
         ret, disc, ended, feats = self.simulate(batch, games, joint)
-        t1 = _time.perf_counter()
+        t1 = time.perf_counter()
         v = np.zeros_like(ret)
         live = ~ended
         if value is not None and live.any():
             v[live] = np.asarray(value(feats[live]), np.float32).reshape(-1)
-        t2 = _time.perf_counter()
+        t2 = time.perf_counter()
         return ret + disc * v, t1 - t0, t2 - t1
 
     def __call__(self, states: Any, a_init: np.ndarray, legal: np.ndarray, value: Any) -> NativeBRDResult:
         """Alg. 1 for B games (``states``: a batch of ``CombatState``, host or device arrays)."""
-        batch = self.batch_arrays(states)
+        batch = state_arrays(states)
         seconds = [0.0, 0.0]
 
         def q_pairs(games: np.ndarray, joint: np.ndarray) -> np.ndarray:

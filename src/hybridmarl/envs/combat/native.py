@@ -19,12 +19,15 @@ native engine's own generator, not JAX's (docs/engine-backends.md).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit, prange
 
 from hybridmarl.engine.native.kernels import (
     ATTACK_BASE,
     DIR_X,
+    FIELDS,
     INF,
     LAST_MOVE,
     MOVE_BASE,
@@ -52,7 +55,23 @@ CRITIC_FEATURES = 35
 
 _ENEMY_SALT = np.uint64(0x5555555555555555)
 
-assert DIR_X.shape == (4,)  # the four engine moves, env actions MOVE_OFFSET .. MOVE_OFFSET + 3
+assert DIR_X.shape == (4,)
+
+
+def state_arrays(states: Any) -> dict[str, np.ndarray]:
+    """The kernels' view of a batch of ``CombatState`` (host or device arrays): the unit fields
+    (``FIELDS`` order), ``time``/``turn``/``stale``/``prev_hp_sum`` and our side's initial HP
+    ``init_hp0`` (the reward's normaliser), as writable int32 copies."""
+    g = states.game
+
+    def arr(a: Any) -> np.ndarray:
+        return np.array(a, dtype=np.int32, order="C", copy=True)
+
+    return {
+        "fields": tuple(arr(getattr(g, f)) for f in FIELDS),  # type: ignore[dict-item]
+        "time": arr(g.time), "turn": arr(g.turn), "stale": arr(g.stale), "prev_hp_sum": arr(g.prev_hp_sum),
+        "init_hp0": arr(np.asarray(states.init_hp)[:, 0]),
+    }  # the four engine moves, env actions MOVE_OFFSET .. MOVE_OFFSET + 3
 
 
 @njit(cache=True, inline="always")
@@ -281,7 +300,7 @@ def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agen
     out[base] = np.sqrt(dx * dx + dy * dy) if both else np.float32(0.0)
 
 
-__all__ = ["CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "play_scripted_episodes", "script_env_actions"]
+__all__ = ["CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "play_scripted_episodes", "script_env_actions", "state_arrays"]
 
 
 @njit(cache=True, parallel=True)
