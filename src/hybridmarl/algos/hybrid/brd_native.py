@@ -48,53 +48,47 @@ def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkab
     the end, whether the game ended, and the critic features of the last state (when it did not
     end). The batch's states are read, never written. Pairs ``c, c + n_chunks, ...`` form chunk
     ``c``; the chunks run in parallel."""
+    n = fields[8].shape[2]
+    # Every chunk's scratch is allocated here, so that the chunk itself allocates nothing and
+    # is compiled without reference counting (see _simulate_chunk).
+    game = np.empty((n_chunks, 11, 2, n), np.int32)
+    clock = np.empty((n_chunks, 5), np.int32)
+    ranks = np.empty((n_chunks, 2, n), np.int64)
+    acts = np.empty((n_chunks, num_agents), np.int64)
+    values = np.empty((n_chunks, 2, n), np.float32)
     for c in prange(n_chunks):
         # A plain (serial) function per chunk: Numba compiles it as such, not as a parfor body.
         _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
                         num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
-                        stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out)
+                        stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out,
+                        game[c], clock[c], make_workspace(n), ranks[c], acts[c], values[c])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
                     num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
-                    stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out):
-    utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
+                    stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out,
+                    game, clock, ws, ranks, acts, values):
+    """Chunk ``c`` of :func:`simulate_candidates` in the given scratch: ``game`` ``[11, 2, U]``
+    (one state's unit fields), ``clock`` ``[5]`` (time, turn, stale, prev_hp_sum), ``ws`` (an
+    engine workspace), ``ranks`` ``[2, U]``, ``acts`` ``[N]``, ``values`` ``[2, U]``.
+
+    Compiled without Numba's reference counting (``_nrt=False``): it allocates nothing, and the
+    atomic reference-count updates on every array it passes on were most of its run time."""
     m = games.shape[0]
-    n = hp.shape[2]
-    ws = make_workspace(n)
-    s_utype = np.empty((2, n), np.int32)
-    s_uid = np.empty((2, n), np.int32)
-    s_x = np.empty((2, n), np.int32)
-    s_y = np.empty((2, n), np.int32)
-    s_px = np.empty((2, n), np.int32)
-    s_py = np.empty((2, n), np.int32)
-    s_tact = np.empty((2, n), np.int32)
-    s_last = np.empty((2, n), np.int32)
-    s_hp = np.empty((2, n), np.int32)
-    s_tmove = np.empty((2, n), np.int32)
-    s_tatk = np.empty((2, n), np.int32)
-    s_time = np.empty(1, np.int32)
-    s_turn = np.empty(1, np.int32)
-    s_stale = np.empty(1, np.int32)
-    s_prev = np.empty((1, 2), np.int32)
-    rank_slot = np.empty(n, np.int64)
-    rank_of = np.empty(n, np.int64)
-    acts = np.empty(num_agents, np.int64)
-    values = np.empty((2, n), np.float32)
+    n = game.shape[2]
+    s_utype, s_uid, s_x, s_y, s_px, s_py = game[0], game[1], game[2], game[3], game[4], game[5]
+    s_tact, s_last, s_hp, s_tmove, s_tatk = game[6], game[7], game[8], game[9], game[10]
+    s_time, s_turn, s_stale = clock[0:1], clock[1:2], clock[2:3]
+    s_prev = clock[3:5].reshape((1, 2))
+    rank_slot, rank_of = ranks[0], ranks[1]
     for i in range(c, m, n_chunks):
         g = games[i]
-        s_utype[:] = utype[g]
-        s_uid[:] = uid[g]
-        s_x[:] = x[g]
-        s_y[:] = y[g]
-        s_px[:] = px[g]
-        s_py[:] = py[g]
-        s_tact[:] = t_act[g]
-        s_last[:] = last[g]
-        s_hp[:] = hp[g]
-        s_tmove[:] = t_move[g]
-        s_tatk[:] = t_attack[g]
+        for f in range(11):  # a plain loop: a slice assignment may allocate a temporary
+            src = fields[f]
+            for p in range(2):
+                for u in range(n):
+                    game[f, p, u] = src[g, p, u]
         s_time[0] = time[g]
         s_turn[0] = turn[g]
         s_stale[0] = stale[g]

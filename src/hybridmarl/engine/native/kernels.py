@@ -621,12 +621,16 @@ def _rng_base(seed, game_id, turn):
     return _mix(_mix(np.uint64(seed) ^ _mix(np.uint64(game_id) + np.uint64(1))) + np.uint64(turn))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def play_game(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
               prev_hp_sum, walkable, script0, script1, overkill_pass, stalemate_limit, max_turns,
               turn_budget, seed, game_id, ws):
     """Play game ``g`` (views [2, U] of its unit fields) until it is over or has played
-    ``turn_budget`` turns (-1: no budget). Returns the number of unit actions issued."""
+    ``turn_budget`` turns (-1: no budget). Returns the number of unit actions issued.
+
+    Compiled without Numba's reference counting (``_nrt=False``): it allocates nothing, and the
+    atomic reference-count updates on the arrays passed down the turn loop cost more than the
+    rules themselves."""
     n_actions = 0
     played = 0
     while not game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):

@@ -142,24 +142,27 @@ def _is_move(code):
 # The engine's turn functions are inlined into their callers (``inline="always"``); the search
 # kernels call them from several places, so each is wrapped once in a plain function here, which
 # keeps the kernels' compile time down (one copy of each instead of one per call site).
+# Functions that allocate nothing are compiled without Numba's reference counting
+# (``_nrt=False``): otherwise every array passed down the turn loop costs an atomic increment
+# and decrement, which took most of a playout's time.
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _prepare(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws):
     return prepare_turn(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _choose(script, p, utype, x, y, hp, rng_base, ws):
     choose_actions(script, p, utype, x, y, hp, rng_base, ws)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws):
     apply_turn(0, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd_total,
                 ltd2_total, walkable, info_scripts, playout0, playout1, overkill_pass,
                 stalemate_limit, seed, ws, st, sc, prev,
@@ -309,7 +312,7 @@ def search_batch(vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid,
                         terminal_out, ev_out, hash_out, value_out, pmoves_out, both_dead_out)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, scripts, overkill_pass,
              stalemate_limit, seed, ws, st, sc, prev, used, per_script):
     n = st.shape[2]

@@ -141,7 +141,7 @@ def _hp_diff(hp):
     return d
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
              prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
              stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared=False):
@@ -152,7 +152,11 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
     engine actions and the enemy script's, then enemy-only turns follow until one of our units
     acts or the game is over. ``last_actions`` is not kept (no caller here needs it).
     ``prepared``: ``ws`` and the ranks already hold this state's turn context (the caller ran
-    :func:`script_env_actions` on it just before)."""
+    :func:`script_env_actions` on it just before).
+
+    Compiled without Numba's reference counting (``_nrt=False``), as are the other kernels here
+    that allocate nothing: with it, the atomic increments and decrements on every array passed
+    down the turn loop took about 80 % of Alg. 1's simulation time."""
     if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
         return np.float32(0.0), True
     diff_old = _hp_diff(hp)
@@ -194,7 +198,7 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
     return reward, game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def script_env_actions(g, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
                        walkable, script, num_agents, stalemate_limit, max_turns, seed, game_id, ws,
                        rank_slot, rank_of_slot, out):
@@ -225,13 +229,13 @@ def script_env_actions(g, utype, x, y, px, py, t_act, last, hp, t_move, t_attack
 
 
 @njit(cache=True, inline="always")
-def _side_stats(values, alive, p, out, at):
+def _side_stats(values, hp, p, out, at):
     """mean, variance, min, max of ``values[p]`` over the living units (0s with none)."""
     n = values.shape[1]
     count = 0
     total = np.float32(0.0)
     for s in range(n):
-        if alive[p, s]:
+        if hp[p, s] > 0:
             count += 1
             total += values[p, s]
     nf = np.float32(max(count, 1))
@@ -240,7 +244,7 @@ def _side_stats(values, alive, p, out, at):
     vmin = np.float32(np.inf)
     vmax = np.float32(-np.inf)
     for s in range(n):
-        if alive[p, s]:
+        if hp[p, s] > 0:
             dv = values[p, s] - mean
             var += dv * dv
             vmin = min(vmin, values[p, s])
@@ -252,28 +256,33 @@ def _side_stats(values, alive, p, out, at):
     return mean
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agents, num_enemies, values, out):
-    """``observe.critic_features`` of one game (``values``: float32 ``[2, U]`` scratch)."""
+    """``observe.critic_features`` of one game (``values``: float32 ``[2, U]`` scratch). Allocates
+    nothing, so it is compiled without reference counting (see ``env_step``)."""
     n = hp.shape[1]
-    alive = hp > 0
     base = 0
-    centroid = np.zeros(4, np.float32)
+    cx0 = cy0 = cx1 = cy1 = np.float32(0.0)
+    alive0 = alive1 = False
     for p in range(2):
         count = 0
         for s in range(n):
-            if alive[p, s]:
+            if hp[p, s] > 0:
                 count += 1
+        if p == 0:
+            alive0 = count > 0
+        else:
+            alive1 = count > 0
         size = num_agents if p == 0 else num_enemies
         out[base] = np.float32(count) / np.float32(size)
         base += 1
         for s in range(n):
             values[p, s] = np.float32(max(hp[p, s], 0)) / np.float32(HP_SCALE)
-        _side_stats(values, alive, p, out, base)
+        _side_stats(values, hp, p, out, base)
         base += 4
         for s in range(n):
             values[p, s] = np.float32(max(t_attack[p, s] - t, 0)) / np.float32(TIME_SCALE)
-        _side_stats(values, alive, p, out, base)
+        _side_stats(values, hp, p, out, base)
         base += 4
         for axis in range(2):
             for s in range(n):
@@ -286,18 +295,19 @@ def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agen
                     ratio = np.float32(t - t_act[p, s]) / np.float32(duration)
                     pos = prev + int(np.float32(pos - prev) * ratio)
                 values[p, s] = np.float32(pos) / np.float32(POS_SCALE)
-            centroid[2 * p + axis] = _side_stats(values, alive, p, out, base)
+            c = _side_stats(values, hp, p, out, base)
+            if p == 0 and axis == 0:
+                cx0 = c
+            elif p == 0:
+                cy0 = c
+            elif axis == 0:
+                cx1 = c
+            else:
+                cy1 = c
             base += 4
-    both = False
-    a0 = False
-    a1 = False
-    for s in range(n):
-        a0 = a0 or alive[0, s]
-        a1 = a1 or alive[1, s]
-    both = a0 and a1
-    dx = centroid[0] - centroid[2]
-    dy = centroid[1] - centroid[3]
-    out[base] = np.sqrt(dx * dx + dy * dy) if both else np.float32(0.0)
+    dx = cx0 - cx1
+    dy = cy0 - cy1
+    out[base] = np.sqrt(dx * dx + dy * dy) if (alive0 and alive1) else np.float32(0.0)
 
 
 __all__ = ["CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "play_scripted_episodes", "script_env_actions", "state_arrays"]
@@ -310,31 +320,42 @@ def play_scripted_episodes(fields, time, turn, stale, prev_hp_sum, init_hp0, wal
     """Whole episodes of the combat env, our side played by ``script``, every game of the batch
     in place (in parallel over ``n_chunks`` strided chunks): the env's episode metrics, with the
     return summed step by step as the env's evaluation loop sums it."""
-    utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
-    b = hp.shape[0]
-    n = hp.shape[2]
+    n = fields[8].shape[2]
     for c in prange(n_chunks):
         ws = make_workspace(n)
-        rank_slot = np.empty(n, np.int64)
-        rank_of = np.empty(n, np.int64)
+        ranks = np.empty((2, n), np.int64)
         acts = np.empty(num_agents, np.int64)
-        for g in range(c, b, n_chunks):
-            ret = np.float32(0.0)
-            count = 0
-            done = game_over(utype[g], hp[g], stale[g], turn[g], stalemate_limit, max_turns)
-            while not done:
-                script_env_actions(g, utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
-                                   t_attack[g], time, turn, stale, walkable, script, num_agents, stalemate_limit,
-                                   max_turns, seed, g, ws, rank_slot, rank_of, acts)
-                r, done = env_step(g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g],
-                                   t_move[g], t_attack[g], time, turn, stale, prev_hp_sum, walkable, acts,
-                                   num_agents, num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
-                                   init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
-                ret = ret + r
-                count += 1
-            w = winner(utype[g], hp[g])
-            won[g] = w == 0
-            lost[g] = w == 1
-            steps[g] = count
-            returns[g] = ret
-            terminal[g] = np.float32(_hp_diff(hp[g])) / np.float32(max(init_hp0[g], 1))
+        _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script,
+                             enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
+                             won, lost, steps, returns, terminal, ws, ranks, acts)
+
+
+@njit(cache=True, _nrt=False)
+def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script,
+                         enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
+                         won, lost, steps, returns, terminal, ws, ranks, acts):
+    """Chunk ``c`` of :func:`play_scripted_episodes`, in the given scratch; allocates nothing,
+    so it is compiled without reference counting (see ``env_step``)."""
+    utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
+    b = hp.shape[0]
+    rank_slot, rank_of = ranks[0], ranks[1]
+    for g in range(c, b, n_chunks):
+        ret = np.float32(0.0)
+        count = 0
+        done = game_over(utype[g], hp[g], stale[g], turn[g], stalemate_limit, max_turns)
+        while not done:
+            script_env_actions(g, utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
+                               t_attack[g], time, turn, stale, walkable, script, num_agents, stalemate_limit,
+                               max_turns, seed, g, ws, rank_slot, rank_of, acts)
+            r, done = env_step(g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g],
+                               t_move[g], t_attack[g], time, turn, stale, prev_hp_sum, walkable, acts,
+                               num_agents, num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
+                               init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
+            ret = ret + r
+            count += 1
+        w = winner(utype[g], hp[g])
+        won[g] = w == 0
+        lost[g] = w == 1
+        steps[g] = count
+        returns[g] = ret
+        terminal[g] = np.float32(_hp_diff(hp[g])) / np.float32(max(init_hp0[g], 1))
