@@ -27,7 +27,7 @@ import numba
 import numpy as np
 from numba import njit, prange
 
-from hybridmarl.engine.native.kernels import SCRIPT_CODES, make_workspace
+from hybridmarl.engine.native.kernels import SCRIPT_CODES, make_workspace, njit_without_refcount
 from hybridmarl.envs.combat.native import (
     CRITIC_FEATURES,
     critic_features,
@@ -64,7 +64,7 @@ def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkab
                         game[c], clock[c], make_workspace(n), ranks[c], acts[c], values[c])
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
                     num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
                     stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out,

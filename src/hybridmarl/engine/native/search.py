@@ -40,6 +40,7 @@ from hybridmarl.engine.native.kernels import (
     apply_turn,
     choose_actions,
     make_workspace,
+    njit_without_refcount,
     player_dead,
     prepare_turn,
 )
@@ -147,22 +148,22 @@ def _is_move(code):
 # and decrement, which took most of a playout's time.
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def _prepare(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws):
     return prepare_turn(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def _choose(script, p, utype, x, y, hp, rng_base, ws):
     choose_actions(script, p, utype, x, y, hp, rng_base, ws)
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws):
     apply_turn(0, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd_total,
                 ltd2_total, walkable, info_scripts, playout0, playout1, overkill_pass,
                 stalemate_limit, seed, ws, st, sc, prev,
@@ -312,7 +313,7 @@ def search_batch(vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid,
                         terminal_out, ev_out, hash_out, value_out, pmoves_out, both_dead_out)
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, scripts, overkill_pass,
              stalemate_limit, seed, ws, st, sc, prev, used, per_script):
     n = st.shape[2]

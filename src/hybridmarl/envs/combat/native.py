@@ -44,6 +44,7 @@ from hybridmarl.engine.native.kernels import (
     game_over,
     make_workspace,
     minimum_free_time,
+    njit_without_refcount,
     prepare_turn,
     winner,
 )
@@ -141,7 +142,7 @@ def _hp_diff(hp):
     return d
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
              prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
              stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared=False):
@@ -198,7 +199,7 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
     return reward, game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns)
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def script_env_actions(g, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
                        walkable, script, num_agents, stalemate_limit, max_turns, seed, game_id, ws,
                        rank_slot, rank_of_slot, out):
@@ -256,7 +257,7 @@ def _side_stats(values, hp, p, out, at):
     return mean
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agents, num_enemies, values, out):
     """``observe.critic_features`` of one game (``values``: float32 ``[2, U]`` scratch). Allocates
     nothing, so it is compiled without reference counting (see ``env_step``)."""
@@ -330,7 +331,7 @@ def play_scripted_episodes(fields, time, turn, stale, prev_hp_sum, init_hp0, wal
                              won, lost, steps, returns, terminal, ws, ranks, acts)
 
 
-@njit(cache=True, _nrt=False)
+@njit_without_refcount
 def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script,
                          enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
                          won, lost, steps, returns, terminal, ws, ranks, acts):
