@@ -18,7 +18,9 @@ from __future__ import annotations
 
 import csv
 import os
+import shutil
 import signal
+import struct
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -83,7 +85,7 @@ def spawn_env(tmp_path_factory) -> Iterator[dict[str, str]]:
 def straight(spawn_env, tmp_path_factory) -> Path:
     """The uninterrupted run every stopped one must end equal to (it fills the cache)."""
     run = tmp_path_factory.mktemp("straight") / "run"
-    assert main(["train", *TOY, "--run-dir", str(run)]) == 0
+    assert main(["train", *TOY, "--tensorboard", "--run-dir", str(run)]) == 0
     return run
 
 
@@ -146,3 +148,54 @@ def test_a_run_killed_anywhere_resumes_exactly(spawn_env, straight, tmp_path, pa
     assert main(["train", "--run-dir", str(run), "--resume", "--no-progress"]) == 0
     _assert_same_run(run, straight)
 
+
+def _shown_scalars(tb_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """The scalars TensorBoard shows of the event files in ``tb_dir``: (step, value) per tag,
+    read in file-name (creation) order, where a purge marker (a START session log at step s)
+    hides the events at step s or later read before it (TensorBoard's rule for a restarted run)."""
+    from tensorboardX.proto import event_pb2
+
+    Event, SessionLog = event_pb2.Event, event_pb2.SessionLog  # pyright: ignore[reportAttributeAccessIssue]  (generated)
+    shown: dict[str, list[tuple[int, float]]] = {}
+    for path in sorted(tb_dir.glob("events.out.tfevents.*")):
+        data, at = path.read_bytes(), 0
+        while at < len(data):  # TFRecord: length (8 bytes), its CRC (4), the record, its CRC (4)
+            (size,) = struct.unpack("<Q", data[at : at + 8])
+            event = Event.FromString(data[at + 12 : at + 12 + size])
+            at += 12 + size + 4
+            if event.HasField("session_log") and event.session_log.status == SessionLog.START:
+                shown = {tag: [p for p in points if p[0] < event.step] for tag, points in shown.items()}
+            for value in event.summary.value:
+                if value.HasField("simple_value"):
+                    shown.setdefault(value.tag, []).append((event.step, value.simple_value))
+    return shown
+
+
+def test_tensorboard_after_resume_shows_the_run_as_if_it_never_stopped(straight, tmp_path):
+    # A run stopped after its checkpoint at 4 episodes, its event file holding all that followed.
+    run = tmp_path / "run"
+    shutil.copytree(straight, run)
+    shutil.rmtree(list_checkpoints(run)[-1])
+    (run / "eval.json").unlink()
+    step = load_checkpoint(list_checkpoints(run)[-1])[1]["step"]
+    assert 0 < step < 8
+    assert main(["train", "--run-dir", str(run), "--resume", "--no-progress"]) == 0
+    straight_shown, shown = _shown_scalars(straight / "tb"), _shown_scalars(run / "tb")
+    assert set(shown) == set(straight_shown) and any(tag.startswith("eval/") for tag in shown)
+    for tag, points in straight_shown.items():
+        # Timings differ between runs: compare only their steps.
+        timing = tag.rsplit("/", 1)[-1] in TIMING
+        resumed_below, resumed_at, resumed_above = _around(shown[tag], step, timing)
+        straight_below, straight_at, straight_above = _around(points, step, timing)
+        # Before the checkpoint's step: the first attempt's events, untouched.
+        assert resumed_below == straight_below, tag
+        # At it: all of the uninterrupted run's (the rows after the checkpoint may show twice).
+        assert set(straight_at) <= set(resumed_at), tag
+        # After it: only the resumed run's, one per row, equal to the uninterrupted run's.
+        assert resumed_above == straight_above, tag
+
+
+def _around(points: list[tuple[int, float]], step: int, steps_only: bool) -> tuple[list, list, list]:
+    """``points`` below, at and above ``step`` (their steps only, with ``steps_only``)."""
+    kept = [(s, s if steps_only else v) for s, v in points]
+    return [p for p in kept if p[0] < step], [p for p in kept if p[0] == step], [p for p in kept if p[0] > step]
