@@ -93,7 +93,9 @@ def train_command(args: list[str]) -> int:
     cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
     from hybridmarl.cli.sizes import check_train_size
     from hybridmarl.training.task import make_task
+    from hybridmarl.validate import check_config
 
+    check_config(cfg)  # every number first: the task and the estimate need valid ones
     check_train_size(cfg, make_task(cfg.task_spec()), yes=known.yes)
     mod.train(cfg)
     return 0
