@@ -3,7 +3,7 @@ job will hold in memory (and, where there is a measured rate, how long it will t
 a threshold, stop with one line that gives the estimate and says to pass ``--yes``
 (:class:`SizeError`, a ``UserError``: exit code 2). docs/engine.md#size-guards lists them.
 
-- ``battle``/``trace``: battles x units (``cli.engine.check_series_size``);
+- ``battle``: battles x units (``cli.engine.check_series_size``; ``trace``: its ``--index``);
 - ``train``: the arrays its sizes set (:func:`train_memory`);
 - ``demos collect --n``: the recorded dataset (:func:`demos_memory`);
 - ``eval --n``: the games played at once (:func:`eval_memory`).
@@ -32,12 +32,12 @@ DEMO_OBSERVATIONS_PER_S = 4_000
 #: 'toy' at m3v3, 935 MB more peak RSS with --buffer-size 1,000,000 than 512, 336 MB of states).
 TRAIN_COPIES = 3
 #: Copies of each recorded observation (with its state) that ``demos collect`` holds at its
-#: peak: the chunks and their concatenation (measured 2.6: m5v5, 325 MB of peak RSS for 19,000
-#: observations of 6,598 bytes).
+#: peak: the chunks and their concatenation (measured 2.6: m5v5, 325 MB more peak RSS for 19,000
+#: more observations of 6,598 bytes).
 DEMO_COPIES = 3
 #: Copies of each game's state and joint observation that ``eval`` holds at its peak: the
 #: scan's carry, the policy's activations, the results (measured 2.2: a toy actor at m3v3,
-#: 171 MB of peak RSS for 19,900 games of 3,972 bytes).
+#: 171 MB more peak RSS for 19,900 more games of 3,972 bytes).
 EVAL_COPIES = 3
 
 
