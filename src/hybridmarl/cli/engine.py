@@ -125,27 +125,19 @@ OUT_BYTES_PER_BATTLE, OUT_BYTES_PER_UNIT = 60, 3
 MAX_TRACE_INDEX = 10_000
 
 
-def _duration(seconds: float) -> str:
-    if seconds < 120:
-        return f"{seconds:.0f} s"
-    if seconds < 7200:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.1f} h"
-
-
 def check_series_size(n: int, units: int, *, swap: bool, out: bool, yes: bool) -> None:
     """Refuse (one line: the estimate and the way on) a series of ``n`` battles of ``units``
     units each that is above :data:`CONFIRM_UNIT_BATTLES` unless ``yes``."""
-    from hybridmarl.errors import UserError
+    from hybridmarl.cli.sizes import SizeError, duration
 
     work = n * units * (2 if swap else 1)
     if work <= CONFIRM_UNIT_BATTLES or yes:
         return
     size = n * (2 if swap else 1) * (OUT_BYTES_PER_BATTLE + OUT_BYTES_PER_UNIT * units)
     out_part = f", --out about {size / 1e9:.1f} GB" if out else ""
-    raise UserError(
+    raise SizeError(
         f"--n {n} battles of {units} units{' (twice, --swap)' if swap else ''} would take about "
-        f"{_duration(work / UNIT_BATTLES_PER_S)} of CPU time{out_part} (memory stays bounded: they are "
+        f"{duration(work / UNIT_BATTLES_PER_S)} of CPU time{out_part} (memory stays bounded: they are "
         f"played in chunks of {chunk_battles(units)}): pass --yes to play them, or a smaller --n"
     )
 

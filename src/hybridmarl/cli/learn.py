@@ -59,6 +59,7 @@ def train_command(args: list[str]) -> int:
     pre.add_argument("--env", default="combat")
     pre.add_argument("--run-dir", "--run_dir", dest="run_dir", default=None)
     pre.add_argument("--resume", action="store_true")
+    pre.add_argument("--yes", action="store_true")
     known, rest = pre.parse_known_args(args)
     # --resume with a run directory and no preset: start from the run's own (validated) config.
     doc = None
@@ -86,9 +87,16 @@ def train_command(args: list[str]) -> int:
         extra += ["--resume"]
     desc = (
         f"{(cls.__doc__ or '').strip()}\n\n--algo {{{', '.join(algos.ALGOS)}}} (default hybrid); "
-        f"--preset {{{', '.join(mod.PRESETS)}}} (default {default_preset}) sets the defaults below."
+        f"--preset {{{', '.join(mod.PRESETS)}}} (default {default_preset}) sets the defaults below; "
+        "--yes trains a run whose arrays are estimated above the size guard (docs/engine.md#size-guards)."
     )
     cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
+    from hybridmarl.cli.sizes import check_train_size
+    from hybridmarl.training.task import make_task
+    from hybridmarl.validate import check_config
+
+    check_config(cfg)  # every number first: the task and the estimate need valid ones
+    check_train_size(cfg, make_task(cfg.task_spec()), yes=known.yes)
     mod.train(cfg)
     return 0
 
@@ -146,6 +154,9 @@ class EvalConfig:
     """Print exactly one JSON object (W, R, their 95% intervals, ...) on stdout."""
     out: str | None = None
     """Also write the JSON here."""
+    yes: bool = False
+    """Play an --n whose games are estimated above the size guard (8 GiB of memory;
+    docs/engine.md#size-guards)."""
 
 
 def apply_setting(spec: Any, setting: str | None, *, p_arrive: float | None = None) -> Any:
@@ -221,9 +232,12 @@ def run_eval(cfg: EvalConfig) -> int:
             enemy_label = enemy
     else:
         task = make_task(spec)
+    if bundle is not None and (task.num_agents, task.num_actions, task.obs_dim) != (make_task(bundle.spec).num_agents, make_task(bundle.spec).num_actions, make_task(bundle.spec).obs_dim):
+        raise UserError(f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes")
+    from hybridmarl.cli.sizes import check_eval_size
+
+    check_eval_size(cfg.n, task, yes=cfg.yes)
     if bundle is not None:
-        if (task.num_agents, task.num_actions, task.obs_dim) != (make_task(bundle.spec).num_agents, make_task(bundle.spec).num_actions, make_task(bundle.spec).obs_dim):
-            raise UserError(f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes")
         res = E.evaluate_task(task, bundle.module, bundle.variables, n=cfg.n, seed=cfg.seed)
     elif cfg.script is not None and E.is_search_spec(cfg.script):
         # A search player (Table 1's UCT_c, A-B_c, Profile) on the same start states as a script.
@@ -304,6 +318,9 @@ class DemosCollectConfig:
     per step; as 'hybridmarl train --time-penalty'). The paper's reward has none."""
     max_turns: int = 1000
     """Combat turn cap per episode."""
+    yes: bool = False
+    """Record an --n whose dataset is estimated above the size guard (8 GiB of memory;
+    docs/engine.md#size-guards)."""
 
 
 @dataclass(frozen=True)
@@ -353,6 +370,10 @@ def run_demos_collect(cfg: DemosCollectConfig) -> int:
     else:
         spec = TaskSpec(env=env, time_penalty=cfg.time_penalty)
     spec = apply_setting(spec, cfg.setting, p_arrive=cfg.p_arrive)
+    from hybridmarl.cli.sizes import check_demos_size
+    from hybridmarl.training.task import make_task
+
+    check_demos_size(cfg.n, make_task(spec), yes=cfg.yes)
     ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma)
     path = D.save_dataset(ds, cfg.out)
     print(f"recorded {ds.size} observations ({int(ds.arrays['episode'].max()) + 1} episodes) of {demo} on {spec.label()} -> {path}")

@@ -11,7 +11,13 @@ Under the run directory:
 
 On ``--resume`` the CSV rows written after the checkpoint are dropped (each checkpoint records
 how many rows every log had), so the files read as if the run had never stopped; a run that
-starts from scratch in a directory with old logs starts them afresh. The progress display is a rich progress bar on a terminal and a
+starts from scratch in a directory with old logs starts them afresh. TensorBoard event files
+are append-only, so the resumed run's new event file starts with a purge marker instead
+(tensorboardX's ``purge_step``): TensorBoard then hides the older events at a step after the
+checkpoint's (its episode count), which the resumed run logs again. Events at the checkpoint's
+own step are kept, as some were logged before it was saved: the rows of chunks that finished
+no episode after it can show twice there (with equal values, timings aside). A fresh start
+purges from step 0, hiding every event of the earlier attempt. The progress display is a rich progress bar on a terminal and a
 plain status line every few seconds otherwise (log files, CI).
 """
 
@@ -124,15 +130,29 @@ class RunLogger:
         self.train = CsvLog(self.run_dir / "train.csv", "episodes")
         self.episodes = CsvLog(self.run_dir / "episodes.csv", "episode")
         self.evals = CsvLog(self.run_dir / "evals.csv", "episodes")
-        self.tb = None
+        self._tensorboard = False
+        self._tb: Any = None
+        # The first step of the run the new event file holds (None: the run starts with it).
+        self._purge_step: int | None = None
         if tensorboard:
             try:
-                from tensorboardX import SummaryWriter
+                import tensorboardX  # noqa: F401
             except ImportError:
                 # An optional extra: the run goes on with its CSV logs.
                 print("TensorBoard logging is off: tensorboardX is not installed (pip install 'hybridmarl[tensorboard]')")
             else:
-                self.tb = SummaryWriter(str(self.run_dir / "tb"), flush_secs=30)
+                self._tensorboard = True
+
+    @property
+    def tb(self) -> Any:
+        """The TensorBoard writer (None when TensorBoard is off). Opened at its first use, so
+        that 'reset' or 'resume_at' can first say from which step on its events replace older
+        ones."""
+        if self._tb is None and self._tensorboard:
+            from tensorboardX import SummaryWriter
+
+            self._tb = SummaryWriter(str(self.run_dir / "tb"), flush_secs=30, purge_step=self._purge_step)
+        return self._tb
 
     def write_config(self, doc: dict[str, Any]) -> None:
         write_json_atomic(self.run_dir / "config.json", doc)
@@ -155,10 +175,14 @@ class RunLogger:
         a checkpoint without them, the rows up to ``episodes``."""
         for name, log in self.logs().items():
             log.truncate_to(None if rows is None else int(rows.get(name, 0)), episodes)
+        # TensorBoard steps are episode counts, shared by the chunks that finish no episode:
+        # the events at the checkpoint's own step stay (some were logged before it).
+        self._purge_step = int(episodes) + 1
 
     def reset(self) -> None:
         for log in self.logs().values():
             log.reset()
+        self._purge_step = 0  # TensorBoard hides every event of an earlier attempt
 
     def scalars(self, step: int, values: dict[str, Any], prefix: str = "train") -> None:
         if self.tb is None:
@@ -168,10 +192,10 @@ class RunLogger:
                 self.tb.add_scalar(f"{prefix}/{k}", float(v), step)
 
     def close(self) -> None:
-        if self.tb is not None:
-            self.tb.flush()
-            self.tb.close()
-            self.tb = None
+        if self._tb is not None:
+            self._tb.flush()
+            self._tb.close()
+        self._tb, self._tensorboard = None, False
 
 
 def _flat(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
