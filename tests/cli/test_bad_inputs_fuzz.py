@@ -600,3 +600,62 @@ def fuzz_table() -> str:
 
 if __name__ == "__main__":
     print(fuzz_table())
+
+
+# -- unreadable files ------------------------------------------------------------------------------
+# Root reads any file, so a mode-000 file cannot be made for it; the permission check itself
+# (``hybridmarl.io.check_user_file``, which every loader goes through) is exercised instead by
+# having ``os.access`` deny reading the one file.
+
+
+def _unreadable_cases() -> list[tuple[str, str, Callable[[Path, Base], list[str]]]]:
+    def plain(name: str, content: Callable[[], bytes], argv: Callable[[Path], list[str]]):
+        def write(d: Path, base: Base) -> list[str]:
+            (d / name).write_bytes(content())
+            return argv(d / name)
+
+        return write
+
+    def in_run(argv: Callable[[Path], list[str]]):
+        def write(d: Path, base: Base) -> list[str]:
+            run = _run_copy(d, base)
+            return argv(run)
+
+        return write
+
+    def dataset(d: Path, base: Base) -> list[str]:
+        arrays, meta = _dataset_arrays()
+        _write_dataset(d / "demos.safetensors", arrays, meta)
+        return ["demos", "info", str(d / "demos.safetensors")]
+
+    return [
+        ("states file (battle)", "states.json", plain("states.json", lambda: json.dumps(STATES).encode(), lambda p: ["battle", "--states", str(p), "--no-progress"])),
+        ("scenario file", "scenario.json", plain("scenario.json", lambda: json.dumps(SCENARIO).encode(), lambda p: ["battle", "--scenario-file", str(p), "--n", "2", "--no-progress"])),
+        ("map file", "walk.map", plain("walk.map", MAP.encode, lambda p: ["battle", "--map-file", str(p), "--scenario", "m1v1", "--n", "2", "--no-progress"])),
+        ("run config.json (eval)", "config.json", in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"])),
+        ("checkpoint meta.json", "meta.json", in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"])),
+        ("checkpoint arrays", "arrays.safetensors", in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"])),
+        ("demonstration dataset", "demos.safetensors", dataset),
+        ("run log train.csv", "train.csv", in_run(lambda r: ["train", "--run-dir", str(r), "--resume", "--no-progress"])),
+    ]
+
+
+@pytest.mark.parametrize("loader,name,write", _unreadable_cases(), ids=[c[0] for c in _unreadable_cases()])
+def test_unreadable_file_is_one_line_exit_2(loader: str, name: str, write: Callable[[Path, Base], list[str]], base: Base, tmp_path: Path, capsys: Any, monkeypatch: pytest.MonkeyPatch):
+    import hybridmarl.io as hio
+
+    real_access = os.access
+
+    def access(path: Any, mode: int, *args: Any, **kwargs: Any) -> bool:
+        if Path(path).name == name and mode & os.R_OK:
+            return False
+        return real_access(path, mode, *args, **kwargs)
+
+    argv = write(tmp_path, base)
+    monkeypatch.setattr(hio.os, "access", access)
+    capsys.readouterr()
+    rc = main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2, (loader, rc, err)
+    assert len(err) == 1 and err[0].startswith("hybridmarl: error: "), err
+    assert "permission denied" in err[0] and name in err[0], err
