@@ -57,7 +57,7 @@ def test_native_chunk_equals_pool_steps(enemy, script):
             np.testing.assert_array_equal(got[name], ref[name], err_msg=f"chunk {chunk}: state.{name}")
         np.testing.assert_array_equal(out_n["reward"], out_j["reward"])
         np.testing.assert_array_equal(out_n["done"], out_j["done"])
-        assert sorted(out_n["stats"]) == sorted(out_j["stats"])
+        assert list(out_n["stats"]) == list(out_j["stats"])
         for name, v in out_j["stats"].items():
             np.testing.assert_array_equal(out_n["stats"][name], v, err_msg=name)
         for a, b in zip(jax.tree.leaves(pool_n), jax.tree.leaves(pool_j), strict=True):
@@ -95,3 +95,17 @@ def test_learner_picks_the_engine_of_phase_2():
     assert not isinstance(build_learner(task, cfg.replace(engine="jax"), "attack-closest").demo_chunk, NativeScriptRollout)
     assert native_rollout_support(task, "attack-closest") is None
     assert "script" in (native_rollout_support(task, "dataset:demos.npz") or "")
+
+
+def test_demos_collect_same_dataset_on_both_engines():
+    from hybridmarl.training import demos as D
+
+    spec = PRESETS["quick-paper"]("combat").replace(scenario="m5v5", enemy="attack-weakest").task_spec()
+    runs = {e: D.collect(spec, "attack-closest", 300, seed=3, num_envs=NUM_ENVS, chunk=STEPS, engine=e) for e in ("native", "jax")}
+    native, ref = runs["native"], runs["jax"]
+    assert sorted(native.arrays) == sorted(ref.arrays)
+    for name, v in ref.arrays.items():
+        np.testing.assert_array_equal(native.arrays[name], v, err_msg=name)
+    assert native.meta == ref.meta
+    assert D._native_collect(make_task(spec), "attack-closest", "auto") == (jax.default_backend() == "cpu")
+    assert not D._native_collect(make_task(spec), "random", "native")

@@ -45,8 +45,8 @@ def native_rollout_support(task: Task, demo_script: str | None) -> str | None:
 class NativeScriptRollout:
     """``Learner.demo_chunk`` for a script demonstrator on the native engine (module docstring):
     ``(pool, clone_vars) -> (pool, out)`` with ``out`` time-major ``[K, B]``: ``state`` (a
-    ``CombatState`` of NumPy arrays), ``reward``, ``done`` and ``stats`` (the env's episode
-    metrics, valid where done)."""
+    ``CombatState`` of NumPy arrays), ``actions`` (the script's env actions ``[K, B, N]``),
+    ``reward``, ``done`` and ``stats`` (the env's episode metrics, valid where done)."""
 
     def __init__(self, task: Task, script: str, *, num_envs: int, steps: int) -> None:
         env = task.env
@@ -73,6 +73,7 @@ class NativeScriptRollout:
         state = {k: np.array(v, order="C", copy=True) for k, v in flatten_named(jax.device_get(pool.states)).items()}
         k_steps, b = self.steps, self.num_envs
         recorded = {k: np.empty((k_steps,) + v.shape, v.dtype) for k, v in state.items()}
+        actions = np.zeros((k_steps, b, self.num_agents), np.int32)
         reward = np.zeros((k_steps, b), np.float32)
         done = np.zeros((k_steps, b), np.bool_)
         won = np.zeros((k_steps, b), np.bool_)
@@ -89,7 +90,7 @@ class NativeScriptRollout:
                 tuple(state["game." + f] for f in FIELDS), state["game.time"], state["game.turn"], state["game.stale"],
                 state["game.prev_hp_sum"], state["last_actions"], state["steps"], init_hp0, self.walkable,
                 self.script, self.enemy, self.num_agents, self.num_actions, self.overkill_pass, self.stalemate_limit,
-                self.max_turns, int(seeds[t]), chunks, reward[t], done[t], won[t], lost[t], terminal[t],
+                self.max_turns, int(seeds[t]), chunks, actions[t], reward[t], done[t], won[t], lost[t], terminal[t],
             )
             if done[t].any():  # pool_steps' resets: slot g takes step t's g-th fresh start state
                 for k, v in state.items():
@@ -97,11 +98,14 @@ class NativeScriptRollout:
                     np.copyto(v, resets[k][t], where=d)
         states = unflatten_named(self.template, state, batch_dims=1)
         pool = Pool(states=states, obs=self._observe(states), key=key_data)
-        stats = {
-            "won": won.astype(np.float32), "lost": lost.astype(np.float32),
-            "draw": (done & ~won & ~lost).astype(np.float32), "terminal_hp_reward": terminal,
+        stats = {  # the names, and their order, of the JAX chunk's (jit returns dicts sorted by key)
+            "draw": (done & ~won & ~lost).astype(np.float32), "lost": lost.astype(np.float32),
+            "terminal_hp_reward": terminal, "won": won.astype(np.float32),
         }
-        out = {"state": unflatten_named(self.template, recorded, batch_dims=2), "reward": reward, "done": done, "stats": stats}
+        out = {
+            "state": unflatten_named(self.template, recorded, batch_dims=2), "actions": actions,
+            "reward": reward, "done": done, "stats": stats,
+        }
         return pool, out
 
 

@@ -405,13 +405,13 @@ def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, in
 @njit(cache=True, parallel=True)
 def step_scripted_games(fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0, walkable, script,
                         enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed, n_chunks,
-                        reward, done, won, lost, terminal):
+                        actions, reward, done, won, lost, terminal):
     """One env step of every game of the batch, our side played by ``script``, in place (in
     parallel over ``n_chunks`` strided chunks): the whole ``CombatState`` moves on, including
     ``last_actions`` ``[B, 2, U]`` and ``steps`` ``[B]``, as ``Combat.step`` moves it. Writes the
-    step's reward and ``done`` and the env's episode metrics of the new state (``won``/``lost``
-    where done, ``terminal``: the hit-points reward). A game already over is left as it is
-    (reward 0, done)."""
+    script's env actions ``[B, N]`` (``Combat.script_policy``'s), the step's reward and ``done``
+    and the env's episode metrics of the new state (``won``/``lost`` where done, ``terminal``:
+    the hit-points reward). A game already over is left as it is (noop actions, reward 0, done)."""
     n = fields[8].shape[2]
     # Every chunk's scratch is allocated here, so that the chunk allocates nothing and is
     # compiled without reference counting (see _step_scripted_chunk).
@@ -420,13 +420,14 @@ def step_scripted_games(fields, time, turn, stale, prev_hp_sum, last_actions, st
     for c in prange(n_chunks):
         _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
                              walkable, script, enemy, num_agents, num_actions, overkill_pass, stalemate_limit,
-                             max_turns, seed, reward, done, won, lost, terminal, make_workspace(n), ranks[c], acts[c])
+                             max_turns, seed, actions, reward, done, won, lost, terminal, make_workspace(n), ranks[c],
+                             acts[c])
 
 
 @njit_without_refcount
 def _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
                          walkable, script, enemy, num_agents, num_actions, overkill_pass, stalemate_limit,
-                         max_turns, seed, reward, done, won, lost, terminal, ws, ranks, acts):
+                         max_turns, seed, actions, reward, done, won, lost, terminal, ws, ranks, acts):
     """Chunk ``c`` of :func:`step_scripted_games`, in the given scratch; allocates nothing, so it
     is compiled without reference counting (see ``env_step``)."""
     utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
@@ -435,6 +436,8 @@ def _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, la
     for g in range(c, b, n_chunks):
         if game_over(utype[g], hp[g], stale[g], turn[g], stalemate_limit, max_turns):
             r, d = np.float32(0.0), True
+            for u in range(num_agents):
+                actions[g, u] = NOOP
         else:
             script_env_actions(g, utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
                                t_attack[g], time, turn, stale, walkable, script, num_agents, stalemate_limit,
@@ -445,6 +448,8 @@ def _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, la
                 stalemate_limit, max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, True, last_actions[g],
             )
             steps[g] += 1
+            for u in range(num_agents):
+                actions[g, u] = acts[u]
         w = winner(utype[g], hp[g])
         reward[g] = r
         done[g] = d
