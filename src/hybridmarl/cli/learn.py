@@ -318,6 +318,10 @@ class DemosCollectConfig:
     per step; as 'hybridmarl train --time-penalty'). The paper's reward has none."""
     max_turns: int = 1000
     """Combat turn cap per episode."""
+    engine: Literal["auto", "native", "jax"] = "auto"
+    """Engine of a combat script against a scripted enemy: 'native' (the default on a CPU,
+    'auto') records the same dataset faster; the 'random' script always plays on jax
+    (docs/engine-backends.md)."""
     yes: bool = False
     """Record an --n whose dataset is estimated above the size guard (8 GiB of memory;
     docs/engine.md#size-guards)."""
@@ -374,7 +378,7 @@ def run_demos_collect(cfg: DemosCollectConfig) -> int:
     from hybridmarl.training.task import make_task
 
     check_demos_size(cfg.n, make_task(spec), yes=cfg.yes)
-    ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma)
+    ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma, engine=cfg.engine)
     path = D.save_dataset(ds, cfg.out)
     print(f"recorded {ds.size} observations ({int(ds.arrays['episode'].max()) + 1} episodes) of {demo} on {spec.label()} -> {path}")
     return 0

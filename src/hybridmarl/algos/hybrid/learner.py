@@ -13,7 +13,8 @@ With the native engine ('engine', resolved by 'Learner.engine'), 'train_chunk' r
 steps as a host loop instead of one 'lax.scan': per env step one jitted call for the actor's
 actions, one host call for the whole of Alg. 1 on the native engine ('brd_native'), and one
 jitted call for the actor update (on the rows of the agents that have a choice only, gathered
-and padded to a few fixed sizes: the same loss) and the env step.
+and padded to a few fixed sizes: the same loss) and the env step; and with a script A^D,
+'demo_chunk' plays Phase 2's games on the native engine ('rollout_native': the same chunk).
 
 'build_learner' caches learners under 'training.config.compile_key' of the config, so runs that
 differ only in run-only fields (seed, budgets, paths, cadences) share compiled programs.
@@ -75,6 +76,10 @@ class Learner:
         self.timing: dict[str, float] = {}
         if self.engine == "native":
             from hybridmarl.algos.hybrid.brd_native import NativeBRD
+            from hybridmarl.algos.hybrid.rollout_native import (
+                NativeScriptRollout,
+                native_rollout_support,
+            )
 
             lookahead = simulated_steps(cfg)
             self.native_brd = NativeBRD(
@@ -85,6 +90,9 @@ class Learner:
             self._native_post = jax.jit(functools.partial(self._native_post_fn, actor_steps=cfg.actor_steps, target=cfg.actor_target))
             self._chunk_steps = cfg.chunk_steps
             self.train_chunk = self._train_chunk_native
+            # Phase 2 with a script A^D plays on the native engine too (same chunk, same pool).
+            if demo_script is not None and native_rollout_support(task, demo_script) is None:
+                self.demo_chunk = NativeScriptRollout(task, demo_script, num_envs=cfg.num_envs, steps=cfg.chunk_steps)
 
     # Phase 2's data: A^D plays from random start states.
     def _demo_chunk(self, pool: Pool, clone_vars: Any, *, steps: int):

@@ -140,7 +140,7 @@ def train(cfg: HybridConfig) -> TrainResult:
             # ---- Phase 1: the demonstrator A^D (Section 3) ------------------------------------------
             if needs_clone:
                 if dataset is None:
-                    dataset = D.collect(spec, cfg.demonstrator_name(), cfg.demo_observations, seed=cfg.seed, gamma=cfg.gamma)
+                    dataset = D.collect(spec, cfg.demonstrator_name(), cfg.demo_observations, seed=cfg.seed, gamma=cfg.gamma, engine=cfg.engine)
                 rows = D.bc_rows(dataset)
                 assert st.clone is not None
                 st.clone, losses = D.fit_bc(st.clone, learner.actor_mod, (cfg.optimizer, cfg.actor_lr), rows, st.next_key(), cfg.bc_steps, cfg.bc_batch_size)

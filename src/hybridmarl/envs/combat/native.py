@@ -151,13 +151,41 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
 
     An illegal action becomes the unit's first legal engine action. The decision turn plays our
     engine actions and the enemy script's, then enemy-only turns follow until one of our units
-    acts or the game is over. ``last_actions`` is not kept (no caller here needs it).
+    acts or the game is over. ``last_actions`` is not kept here
+    (:func:`env_step_keeping_last_actions` keeps it).
     ``prepared``: ``ws`` and the ranks already hold this state's turn context (the caller ran
     :func:`script_env_actions` on it just before).
 
     Compiled without Numba's reference counting (``_nrt=False``), as are the other kernels here
     that allocate nothing: with it, the atomic increments and decrements on every array passed
     down the turn loop took about 80 % of Alg. 1's simulation time."""
+    return _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+                     prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
+                     stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot,
+                     prepared, last, False)
+
+
+@njit_without_refcount
+def env_step_keeping_last_actions(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn,
+                                  stale, prev_hp_sum, walkable, actions, num_agents, num_actions, enemy,
+                                  overkill_pass, stalemate_limit, max_turns, init_hp0, seed, game_id, ws,
+                                  rank_slot, rank_of_slot, prepared, last_actions):
+    """:func:`env_step` that also keeps ``CombatState.last_actions`` (int32 ``[2, U]``, in
+    place): the engine action each unit issued during the step (the latest one if it acted more
+    than once), -1 if none; left as it is when the game was already over."""
+    return _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+                     prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
+                     stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot,
+                     prepared, last_actions, True)
+
+
+@njit_without_refcount
+def _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
+              prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
+              stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared,
+              last_actions, keep_last_actions):
+    """The body of :func:`env_step`; with ``keep_last_actions`` it also records every turn's
+    actions of the acting units in ``last_actions`` (as ``Combat._turn`` does)."""
     if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
         return np.float32(0.0), True
     diff_old = _hp_diff(hp)
@@ -178,6 +206,10 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
             chosen[0, u] = MOVE_BASE + a - MOVE_OFFSET
         else:
             chosen[0, u] = ATTACK_BASE + rank_slot[a - ATTACK_OFFSET]
+    if keep_last_actions:
+        for p in range(2):
+            for u in range(n):
+                last_actions[p, u] = -1
     rng = np.uint64(0)
     first = True
     while True:
@@ -188,6 +220,11 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
         if enemy == RANDOM:  # the native generator, keyed by (seed, game, turn)
             rng = _rng_base(seed, game_id, turn[g]) ^ _ENEMY_SALT
         choose_actions(enemy, 1, utype, x, y, hp, rng, ws)
+        if keep_last_actions:
+            for p in range(2):
+                for u in range(n):
+                    if ws[6][p, u]:
+                        last_actions[p, u] = ws[4][p, u]
         apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
                    prev_hp_sum, overkill_pass, ws)
         first = False
@@ -311,7 +348,10 @@ def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agen
     out[base] = np.sqrt(dx * dx + dy * dy) if (alive0 and alive1) else np.float32(0.0)
 
 
-__all__ = ["CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "play_scripted_episodes", "script_env_actions", "state_arrays"]
+__all__ = [
+    "CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "env_step_keeping_last_actions",
+    "play_scripted_episodes", "script_env_actions", "state_arrays", "step_scripted_games",
+]
 
 
 @njit(cache=True, parallel=True)
@@ -359,4 +399,60 @@ def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, in
         lost[g] = w == 1
         steps[g] = count
         returns[g] = ret
+        terminal[g] = np.float32(_hp_diff(hp[g])) / np.float32(max(init_hp0[g], 1))
+
+
+@njit(cache=True, parallel=True)
+def step_scripted_games(fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0, walkable, script,
+                        enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed, n_chunks,
+                        actions, reward, done, won, lost, terminal):
+    """One env step of every game of the batch, our side played by ``script``, in place (in
+    parallel over ``n_chunks`` strided chunks): the whole ``CombatState`` moves on, including
+    ``last_actions`` ``[B, 2, U]`` and ``steps`` ``[B]``, as ``Combat.step`` moves it. Writes the
+    script's env actions ``[B, N]`` (``Combat.script_policy``'s), the step's reward and ``done``
+    and the env's episode metrics of the new state (``won``/``lost`` where done, ``terminal``:
+    the hit-points reward). A game already over is left as it is (noop actions, reward 0, done)."""
+    n = fields[8].shape[2]
+    # Every chunk's scratch is allocated here, so that the chunk allocates nothing and is
+    # compiled without reference counting (see _step_scripted_chunk).
+    ranks = np.empty((n_chunks, 2, n), np.int64)
+    acts = np.empty((n_chunks, num_agents), np.int64)
+    for c in prange(n_chunks):
+        _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
+                             walkable, script, enemy, num_agents, num_actions, overkill_pass, stalemate_limit,
+                             max_turns, seed, actions, reward, done, won, lost, terminal, make_workspace(n), ranks[c],
+                             acts[c])
+
+
+@njit_without_refcount
+def _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
+                         walkable, script, enemy, num_agents, num_actions, overkill_pass, stalemate_limit,
+                         max_turns, seed, actions, reward, done, won, lost, terminal, ws, ranks, acts):
+    """Chunk ``c`` of :func:`step_scripted_games`, in the given scratch; allocates nothing, so it
+    is compiled without reference counting (see ``env_step``)."""
+    utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
+    b = hp.shape[0]
+    rank_slot, rank_of = ranks[0], ranks[1]
+    for g in range(c, b, n_chunks):
+        if game_over(utype[g], hp[g], stale[g], turn[g], stalemate_limit, max_turns):
+            r, d = np.float32(0.0), True
+            for u in range(num_agents):
+                actions[g, u] = NOOP
+        else:
+            script_env_actions(g, utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
+                               t_attack[g], time, turn, stale, walkable, script, num_agents, stalemate_limit,
+                               max_turns, seed, g, ws, rank_slot, rank_of, acts)
+            r, d = env_step_keeping_last_actions(
+                g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g], t_attack[g],
+                time, turn, stale, prev_hp_sum, walkable, acts, num_agents, num_actions, enemy, overkill_pass,
+                stalemate_limit, max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, True, last_actions[g],
+            )
+            steps[g] += 1
+            for u in range(num_agents):
+                actions[g, u] = acts[u]
+        w = winner(utype[g], hp[g])
+        reward[g] = r
+        done[g] = d
+        won[g] = d and w == 0
+        lost[g] = d and w == 1
         terminal[g] = np.float32(_hp_diff(hp[g])) / np.float32(max(init_hp0[g], 1))
