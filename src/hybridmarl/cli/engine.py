@@ -114,10 +114,10 @@ CONFIRM_UNIT_BATTLES = 20_000_000
 #: played chunk by chunk, so its memory does not grow with --n (100,000 m5v5 battles a chunk;
 #: chunk k > 0 draws its start states from seed (seed, k)).
 CHUNK_UNITS = 1_000_000
-#: Unit-battles per CPU-second of state generation plus native play: 100,000 (m5v5, 400,000
-#: battles in 41.5 CPU-s, 2026-12-02, 2-core x86-64 CPU VM, shared; docs/engine.md). Used
-#: only for the estimate.
-UNIT_BATTLES_PER_S = 100_000
+#: Unit-battles per CPU-second of state generation plus native play: 200,000 (m5v5, 400,000
+#: battles in 17.5-18.1 CPU-s, start-up included, 2026-12-02, 2-core x86-64 CPU VM, load 5;
+#: docs/engine.md). Used only for the estimate.
+UNIT_BATTLES_PER_S = 200_000
 #: Bytes of --out JSON per battle and per unit (its final HP): 90 per m5v5 battle, measured.
 OUT_BYTES_PER_BATTLE, OUT_BYTES_PER_UNIT = 60, 3
 #: Highest --index of ``trace`` on a named scenario: its states are drawn in sequence, so
