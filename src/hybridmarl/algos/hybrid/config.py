@@ -96,9 +96,10 @@ class BRDOptions(Options):
     'native' runs the whole of Alg. 1 for all games of an env step in one host call on the
     native engine (combat against a scripted enemy, with Eq. 2's one-step Q or a look-ahead
     continued by the demonstrator script; docs/engine-backends.md); 'jax' runs it under jit on
-    the JAX engine; 'auto' takes native on a CPU where it applies, else jax. The simulated
-    returns are identical; the critic's values differ by float rounding, which can flip a
-    near-tie in Alg. 1."""
+    the JAX engine; 'auto' takes native on a CPU where it applies, else jax. The same engine
+    plays the critic's pre-training rollouts and the demonstrations of Phase 1 when A^D is a
+    script. The simulated returns are identical; the critic's values differ by float rounding,
+    which can flip a near-tie in Alg. 1."""
     brd_work_batch: int = 2
     """Alg. 1's simulation batch: each call simulates brd_work_batch x |A| candidate joint
     actions (an implementation choice; it does not change Ã). Each visit of Alg. 1 gathers the
