@@ -61,36 +61,22 @@ def evaluate_policy(task: Any, module: Any, variables: Any, script: str | None, 
 def evaluate_search(task: Any, player: str, n: int, seed: int) -> tuple[dict[str, Any], dict[str, list[float]]]:
     """A search player on the start states of ``seed`` (those of :func:`evaluate_policy`), as
     ``training.evaluate.evaluate_player`` plays it, keeping each battle's outcome."""
-    import jax
     import numpy as np
 
-    from hybridmarl.engine.rules import hp_sums
-    from hybridmarl.search import make_player
-    from hybridmarl.search.runner import play_game_with_players
+    from hybridmarl.training.evaluate import play_search_battles
 
-    k_reset, _ = jax.random.split(jax.random.key(seed))
-    _, states = jax.jit(jax.vmap(task.reset))(jax.random.split(k_reset, n))
-    ours, enemy = make_player(player), make_player(task.spec.enemy)
-    ep: dict[str, list[float]] = {k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")}
-    stats: list[dict[str, Any]] = []
     t0 = time.time()
-    for i in range(n):
-        start = jax.tree.map(lambda a, i=i: a[i], states)
-        g = play_game_with_players(start.game, task.env.rules, ours, enemy, seed=seed + i)
-        hp = np.asarray(hp_sums(g.final_state))
-        norm = max(int(start.init_hp[0]), 1)
-        ep["won"].append(float(g.winner == 0))
-        ep["lost"].append(float(g.winner == 1))
-        ep["draw"].append(float(g.winner not in (0, 1)))
-        ep["terminal_hp_reward"].append(float(np.float32(hp[0] - hp[1]) / np.float32(norm)))
-        ep["steps"].append(float(len(g.decisions[0])))
-        stats += [d.as_dict() for d in g.decisions[0]]
-        print(f"battle {i + 1}/{n}: W so far {np.mean(ep['won']):.3f} ({time.time() - t0:.0f} s)", flush=True)
-    summary = task.summarize({k: np.asarray(v) for k, v in ep.items()})
+
+    def log(done: int, ep: dict[str, list[float]]) -> None:
+        print(f"battle {done}/{n}: W so far {np.mean(ep['won']):.3f} ({time.time() - t0:.0f} s)", flush=True)
+
+    ep, decisions = play_search_battles(task, player, n=n, seed=seed, on_battle=log)
+    summary = task.summarize(ep)
+    stats = [d.as_dict() for d in decisions]
     for name in ("ms", "traversals", "nodes", "playouts"):
         values = [float(s[name]) for s in stats if name in s]
         summary[f"{name}_per_decision"] = float(np.mean(values)) if values else None
-    return summary, _per_episode({k: np.asarray(v) for k, v in ep.items()})
+    return summary, _per_episode(ep)
 
 
 def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, Any], dict[str, list[float]], dict[str, Any]]:

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -320,6 +321,31 @@ def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, pro
     paper) against the task's enemy script, under the env's own rules. W, R and the draws are
     computed from the final states as the env computes them. Battle ``i`` seeds the players
     with ``seed + i``."""
+    bar = None
+    if progress:
+        from hybridmarl.training.logger import Progress
+
+        bar = Progress(n, f"{player} vs {task.spec.enemy}", every_s=30.0)
+
+    def on_battle(done: int, ep: dict[str, list[float]]) -> None:
+        if bar is not None:
+            bar.update(done, f"W {np.mean(ep['won']):.2f}")
+
+    ep, decisions = play_search_battles(task, player, n=n, seed=seed, on_battle=on_battle)
+    if bar is not None:
+        bar.close()
+    out = summarize(task, ep)
+    out["ms_per_decision"] = float(np.mean([d.ms for d in decisions])) if decisions else None
+    return out
+
+
+def play_search_battles(
+    task: Task, player: str, *, n: int, seed: int, on_battle: Callable[[int, dict[str, list[float]]], None] | None = None
+) -> tuple[dict[str, np.ndarray], list[Any]]:
+    """The battles of :func:`evaluate_player`: per-battle ``won``, ``lost``, ``draw``,
+    ``terminal_hp_reward`` and ``steps`` arrays ``[n]``, and the search statistics of every
+    decision of our side (``search.base.SearchStats``). ``on_battle(i, so_far)`` is called after
+    battle ``i`` (1-based) with the lists so far."""
     from hybridmarl.engine.rules import hp_sums
     from hybridmarl.search import make_player
     from hybridmarl.search.runner import play_game_with_players
@@ -331,12 +357,7 @@ def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, pro
     _, states = jax.jit(jax.vmap(task.reset))(jax.random.split(k_reset, n))
     ours, enemy = make_player(player), make_player(task.spec.enemy)
     ep: dict[str, list[float]] = {k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")}
-    ms: list[float] = []  # wall-clock time of each of our decisions
-    bar = None
-    if progress:
-        from hybridmarl.training.logger import Progress
-
-        bar = Progress(n, f"{player} vs {task.spec.enemy}", every_s=30.0)
+    decisions: list[Any] = []
     for i in range(n):
         start = jax.tree.map(lambda a, i=i: a[i], states)
         g = play_game_with_players(start.game, env.rules, ours, enemy, seed=seed + i)
@@ -347,14 +368,10 @@ def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, pro
         ep["draw"].append(float(g.winner not in (0, 1)))
         ep["terminal_hp_reward"].append(float(np.float32(hp[0] - hp[1]) / np.float32(norm)))
         ep["steps"].append(float(len(g.decisions[0])))
-        ms += [d.ms for d in g.decisions[0]]
-        if bar is not None:
-            bar.update(i + 1, f"W {np.mean(ep['won']):.2f}")
-    if bar is not None:
-        bar.close()
-    out = summarize(task, {k: np.asarray(v) for k, v in ep.items()})
-    out["ms_per_decision"] = float(np.mean(ms)) if ms else None
-    return out
+        decisions += list(g.decisions[0])
+        if on_battle is not None:
+            on_battle(i + 1, ep)
+    return {k: np.asarray(v) for k, v in ep.items()}, decisions
 
 
 @functools.lru_cache(maxsize=16)

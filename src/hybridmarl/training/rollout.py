@@ -106,13 +106,17 @@ class EpisodeAssembler:
     Rows are dicts of named per-step arrays (``state.<path>``, and for demonstrations ``obs``,
     ``legal``, ``actions``, ...). A finished episode gets ``t`` (step in the episode) and
     ``episode_key`` (a running count of finished episodes) added to its rows.
+
+    A slot's unfinished episode is kept as a list of time-slices of the blocks it spans, so
+    the work per block grows with the number of finished episodes, not with ``K x B`` rows.
     """
 
     def __init__(self, num_envs: int, gamma: float) -> None:
         self.num_envs = num_envs
         self.gamma = gamma
-        self.rows: list[list[dict[str, np.ndarray]]] = [[] for _ in range(num_envs)]
-        self.rewards: list[list[float]] = [[] for _ in range(num_envs)]
+        # Per slot: the pieces of its unfinished episode ({name: [n_i, ...]}) and their rewards.
+        self.pieces: list[list[dict[str, np.ndarray]]] = [[] for _ in range(num_envs)]
+        self.piece_rewards: list[list[np.ndarray]] = [[] for _ in range(num_envs)]
         self.finished = 0
 
     def add(self, out: dict) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
@@ -124,35 +128,42 @@ class EpisodeAssembler:
         self, fields: dict[str, np.ndarray], reward: Any, done: Any, stats: dict[str, Any]
     ) -> tuple[dict[str, np.ndarray], np.ndarray, dict[str, np.ndarray]]:
         """Add named per-step arrays ``[K, B, ...]``; returns the rows of the episodes that
-        finished (``{name: [M, ...]}``, grouped by episode in order of completion), their
-        discounted returns ``[M]`` and the finished episodes' metrics ``{name: [E]}``."""
+        finished (``{name: [M, ...]}``, grouped by episode in order of completion: by step, then
+        by slot), their discounted returns ``[M]`` and the finished episodes' metrics
+        ``{name: [E]}``."""
         reward = np.asarray(reward, np.float32)
         done = np.asarray(done, bool)
         stats_np = {k: np.asarray(v) for k, v in stats.items()}
         fields = {k: np.asarray(v) for k, v in fields.items()}
-        fin_rows: list[dict[str, np.ndarray]] = []
+        names = list(fields)
+        start = np.zeros(self.num_envs, np.int64)  # first step of the block not yet handed out
+        episodes: list[dict[str, np.ndarray]] = []
         fin_returns: list[np.ndarray] = []
         fin_stats: dict[str, list] = {k: [] for k in stats_np}
         fin_stats["return"] = []  # the undiscounted sum of rewards
-        for t in range(reward.shape[0]):
-            for s in range(self.num_envs):
-                self.rows[s].append({k: v[t, s] for k, v in fields.items()})
-                self.rewards[s].append(float(reward[t, s]))
-                if done[t, s]:
-                    rows = self.rows[s]
-                    fin_returns.append(discounted_returns(np.asarray(self.rewards[s]), self.gamma))
-                    for i, r in enumerate(rows):
-                        r["t"] = np.asarray(i, np.int32)
-                        r["episode_key"] = np.asarray(self.finished, np.int64)
-                    fin_rows.extend(rows)
-                    for k in stats_np:
-                        fin_stats[k].append(stats_np[k][t, s])
-                    fin_stats["return"].append(float(np.sum(self.rewards[s])))
-                    self.finished += 1
-                    self.rows[s], self.rewards[s] = [], []
-        names = list(fields) + ["t", "episode_key"]
-        if fin_rows:
-            out = {k: np.stack([r[k] for r in fin_rows]) for k in names}
+        for t, s in zip(*np.nonzero(done), strict=True):  # row-major: by step, then by slot
+            a = start[s]
+            pieces = self.pieces[s] + [{k: fields[k][a : t + 1, s] for k in names}]
+            rewards = np.concatenate(self.piece_rewards[s] + [reward[a : t + 1, s]]).astype(np.float64)
+            episode = {k: np.concatenate([p[k] for p in pieces]) for k in names}
+            episode["t"] = np.arange(rewards.shape[0], dtype=np.int32)
+            episode["episode_key"] = np.full(rewards.shape[0], self.finished, np.int64)
+            episodes.append(episode)
+            fin_returns.append(discounted_returns(rewards, self.gamma))
+            for k in stats_np:
+                fin_stats[k].append(stats_np[k][t, s])
+            fin_stats["return"].append(float(np.sum(rewards)))
+            self.finished += 1
+            self.pieces[s], self.piece_rewards[s] = [], []
+            start[s] = t + 1
+        k_steps = reward.shape[0]
+        for s in range(self.num_envs):
+            a = start[s]
+            if a < k_steps:  # copies, so that a caller may reuse its arrays
+                self.pieces[s].append({k: np.array(fields[k][a:, s]) for k in names})
+                self.piece_rewards[s].append(np.array(reward[a:, s]))
+        if episodes:
+            out = {k: np.concatenate([e[k] for e in episodes]) for k in names + ["t", "episode_key"]}
         else:
             out = {k: np.zeros((0,) + fields[k].shape[2:], fields[k].dtype) for k in fields}
             out["t"] = np.zeros((0,), np.int32)
@@ -163,30 +174,34 @@ class EpisodeAssembler:
     # -- checkpointing -----------------------------------------------------------------------------
 
     def to_arrays(self) -> dict[str, np.ndarray]:
+        """The unfinished episodes as flat arrays: ``slot``, ``reward`` and ``row.<name>`` per
+        stored step, slot by slot in step order, and the ``finished`` count."""
         slots, rewards, rows = [], [], []
         for s in range(self.num_envs):
-            for x, r in zip(self.rows[s], self.rewards[s], strict=True):
-                slots.append(s)
+            for piece, r in zip(self.pieces[s], self.piece_rewards[s], strict=True):
+                slots.append(np.full(r.shape[0], s, np.int32))
                 rewards.append(r)
-                rows.append(x)
+                rows.append(piece)
         out = {
-            "slot": np.asarray(slots, np.int32),
-            "reward": np.asarray(rewards, np.float32),
+            "slot": np.concatenate(slots) if slots else np.zeros((0,), np.int32),
+            "reward": np.concatenate(rewards).astype(np.float32) if rewards else np.zeros((0,), np.float32),
             "finished": np.asarray(self.finished, np.int64),
         }
         if rows:
             for k in rows[0]:
-                out["row." + k] = np.stack([x[k] for x in rows])
+                out["row." + k] = np.concatenate([p[k] for p in rows])
         return out
 
     def load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
-        self.rows = [[] for _ in range(self.num_envs)]
-        self.rewards = [[] for _ in range(self.num_envs)]
+        self.pieces = [[] for _ in range(self.num_envs)]
+        self.piece_rewards = [[] for _ in range(self.num_envs)]
         self.finished = int(arrays["finished"])
         names = [k[len("row.") :] for k in arrays if k.startswith("row.")]
-        for i, s in enumerate(np.asarray(arrays["slot"]).tolist()):
-            self.rows[int(s)].append({k: np.array(arrays["row." + k][i]) for k in names})
-            self.rewards[int(s)].append(float(arrays["reward"][i]))
+        slot = np.asarray(arrays["slot"])
+        for s in np.unique(slot).tolist():
+            idx = np.flatnonzero(slot == s)
+            self.pieces[int(s)].append({k: np.array(arrays["row." + k][idx]) for k in names})
+            self.piece_rewards[int(s)].append(np.asarray(arrays["reward"][idx], np.float32))
 
 
 class ReplayBuffer:
