@@ -201,3 +201,18 @@ def test_outputs_of_a_partial_grid(tmp_path):
     t2 = json.loads((tmp_path / "table2.json").read_text())
     assert t2["rows"]["D"]["status"] == "pending" and t2["rows"]["D"]["paper"]["failure_rate"] == 0.72
     assert Path(tmp_path / "fig3.png").stat().st_size > 1000
+
+
+def test_the_paper_star_marks_the_best_of_the_papers_whole_column(tmp_path):
+    g = expand(("table1",), "smoke", "paper", Selection(scenarios=("m18v20",), demonstrators=("c",), rows=("D",)), drop_empty=True)
+    state = driver.GridState(tmp_path, g)
+    driver.check_output_folder(tmp_path, g, force=False)
+    driver.prepare(state)
+    (cell,) = g.cells
+    _fake_result(state, g.tasks[cell.keys[0]], np.random.default_rng(1), 0.3)
+    state.scan()
+    outputs.write_outputs(state, json.loads((tmp_path / driver.MANIFEST).read_text()))
+    d_line = next(line for line in (tmp_path / "table1.md").read_text().splitlines() if line.startswith("| D_c |"))
+    d_line = d_line.replace("**", "")  # our best of the column, in bold
+    # The paper's best at m18v20 is Ours (0.87, +0.24), not D, even when D is the only row run.
+    assert "paper 0.32" in d_line and "paper 0.32*" not in d_line and "paper −0.11*" not in d_line
