@@ -57,7 +57,9 @@ def test_cross_validation_and_search_budgets():
     g = expand(("table1",), "cpu", "paper", Selection(scenarios=("m18v20",), demonstrators=("w",)))
     by_row = {c.row: [g.tasks[k] for k in c.keys] for c in g.cells}
     assert by_row["D"][0].config["player"] == "attack-weakest" and by_row["D"][0].config["enemy"] == "attack-closest"
-    assert by_row["UCT"][0].config["player"] == "uct:script=attack-weakest,traversals=500,time_ms=0"
+    # SparCraft's 40 ms on one core, interpolated between its 16- and 32-Marine figures for 20 units.
+    assert by_row["UCT"][0].config["player"] == "uct:script=attack-weakest,traversals=90,time_ms=0"
+    assert by_row["A-B"][0].config["player"] == "abcd:script=attack-weakest,nodes=175,time_ms=0"
     assert by_row["Profile"][0].config["player"] == "pgs:portfolio=attack-closest+attack-weakest,time_ms=0"
     ours = by_row["Ours"]
     assert [t.config["seed"] for t in ours] == [0, 1, 2]
@@ -216,3 +218,14 @@ def test_the_paper_star_marks_the_best_of_the_papers_whole_column(tmp_path):
     d_line = d_line.replace("**", "")  # our best of the column, in bold
     # The paper's best at m18v20 is Ours (0.87, +0.24), not D, even when D is the only row run.
     assert "paper 0.32" in d_line and "paper 0.32*" not in d_line and "paper −0.11*" not in d_line
+
+
+def test_search_budgets_are_sparcraft_40ms_by_army_size():
+    assert protocol.sparcraft_40ms_budget("m5v5") == {"traversals": 240, "nodes": 350}  # held at 8 Marines
+    assert protocol.sparcraft_40ms_budget("m16v16") == {"traversals": 105, "nodes": 200}  # a measured size
+    assert protocol.sparcraft_40ms_budget("m24v30") == {"traversals": 52, "nodes": 112}  # 30 units: 105 - 14/16 * 60
+    assert protocol.sparcraft_40ms_budget("m60v60") == {"traversals": 25, "nodes": 50}  # held at 50
+    g = expand(("table1",), "full", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("UCT", "A-B")))
+    assert sorted(t.config["player"] for t in g.tasks.values()) == [
+        "abcd:script=attack-closest,nodes=350,time_ms=0", "uct:script=attack-closest,traversals=240,time_ms=0",
+    ]

@@ -185,7 +185,7 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
                     if row == "D":
                         tasks = [_combat_eval(row, "script", demo, scenario=scenario, demonstrator=demo, setting=setting, n=n)]
                     elif row in budget.search:
-                        player = _search_player(row, demo, search[row])
+                        player = _search_player(row, demo, search[row].format(**P.sparcraft_40ms_budget(scenario)))
                         tasks = [_combat_eval(row, "search", player, scenario=scenario, demonstrator=demo, setting=setting, n=n)]
                     else:
                         tasks = [

@@ -25,7 +25,10 @@ Paired test
 Search rows
     UCT-CD, ABCD and PGS run with deterministic budgets (traversals, nodes, playouts per
     decision, with no wall-clock limit), so a row does not depend on how fast or loaded the
-    machine is. ``--search-budget wallclock`` plays them with the paper's 40 ms per decision
+    machine is. At ``cpu`` and ``full`` the UCT and ABCD budgets are what SparCraft itself does
+    in the paper's 40 ms on one core (:func:`sparcraft_40ms_budget`, from the army size of the
+    scenario); PGS runs its one full improvement pass (I = 1, R = 0), as SparCraft does without a
+    time limit. ``--search-budget wallclock`` plays them with the paper's 40 ms per decision
     instead.
 """
 
@@ -115,7 +118,8 @@ class Budget:
       ``eval_episodes_tj``: Traffic Junction episodes per row.
     - ``seeds``: training seeds of each learner row (Table 1, Table 2, Fig. 3).
     - ``learners``: row -> :class:`Learner` (algo, preset, overrides).
-    - ``search``: search row -> player options (deterministic budgets, no wall clock).
+    - ``search``: search row -> player options (deterministic budgets, no wall clock);
+      ``{traversals}`` and ``{nodes}`` stand for :func:`sparcraft_40ms_budget` of the scenario.
     - ``wallclock_search``: the same rows under the paper's 40 ms per decision.
     """
 
@@ -143,6 +147,9 @@ def _learners(preset: str, hybrid: str, hybrid_wo_d: str, *, large: dict[str, ob
     }
 
 
+#: The search rows of 'cpu' and 'full': SparCraft's 40 ms as counts, per scenario.
+_SEARCH_40MS: dict[str, str] = {"UCT": "traversals={traversals},time_ms=0", "A-B": "nodes={nodes},time_ms=0", "Profile": "time_ms=0"}
+
 #: The three budgets, by name.
 BUDGETS: dict[str, Budget] = {
     "smoke": Budget(
@@ -169,45 +176,63 @@ BUDGETS: dict[str, Budget] = {
             "Meant to fill every cell on one 2-core CPU machine: the learners' 'quick' presets "
             "(Ours: 'quick', with --brd-start demonstrator beyond m5v5; w/o D and Random: "
             "'quick-wo-d'), seeds 0, 1, 2, 1,000 battles (Traffic Junction: 1,000 episodes) per "
-            "row, search players with fixed budgets per decision (UCT 500 traversals, ABCD 2,000 "
-            "nodes, PGS its full I=1, R=0 improvement pass)."
+            "row, search players with fixed budgets per decision: UCT and ABCD what SparCraft "
+            "searches in 40 ms on one core (m5v5: 240 traversals, 350 nodes; m18v20: 90 and 175; "
+            "m30v30 and m24v30: 52 and 112), PGS its full I=1, R=0 improvement pass."
         ),
         eval_battles=1000,
         eval_episodes_tj=1000,
         seeds=(0, 1, 2),
         learners=_learners("quick", "quick", "quick-wo-d", large=_LARGE_QUICK, wo_d_overrides={}),
-        search={
-            "UCT": "traversals=500,time_ms=0",
-            "A-B": "nodes=2000,time_ms=0",
-            "Profile": "time_ms=0",
-        },
+        search=dict(_SEARCH_40MS),
     ),
     "full": Budget(
         name="full",
         doc=(
             "The paper's scale: the learners' 'paper' presets (Section 5.1 hyper-parameters; "
             "hybrid 'wo-d' for w/o D and Random), seeds 0, 1, 2, 1,000 battles (Traffic "
-            "Junction: 1,000 episodes) per row, search players with SparCraft's sample-config "
-            "budgets as fixed counts (UCT 5,000 traversals, ABCD 20,000 nodes, PGS I=1, R=0). "
-            "Days of CPU time; meant for a cluster (--address)."
+            "Junction: 1,000 episodes) per row, search players as at 'cpu' (SparCraft's 40 ms "
+            "on one core as fixed counts; PGS I=1, R=0). Days of CPU time; meant for a cluster "
+            "(--address)."
         ),
         eval_battles=1000,
         eval_episodes_tj=1000,
         seeds=(0, 1, 2),
         learners=_learners("paper", "paper", "wo-d", large={}, wo_d_overrides={}),
-        search={
-            "UCT": "traversals=5000,time_ms=0",
-            "A-B": "nodes=20000,time_ms=0",
-            "Profile": "time_ms=0",
-        },
+        search=dict(_SEARCH_40MS),
     ),
 }
+
+#: SparCraft's own search in 40 ms of one core, n vs n Marines -> (UCT-CD traversals, ABCD nodes
+#: expanded) per decision: the upper ends of the ranges measured on SparCraft's current build
+#: (docs/reproducing.md#search-budgets).
+SPARCRAFT_40MS: dict[int, tuple[int, int]] = {8: (240, 350), 16: (105, 200), 32: (45, 100), 50: (25, 50)}
+
+
+def sparcraft_40ms_budget(scenario: str) -> dict[str, int]:
+    """``{"traversals": T, "nodes": N}``: what SparCraft searches in 40 ms for the larger army of
+    ``scenario`` (``mAvB``), linearly interpolated between the measured army sizes of
+    :data:`SPARCRAFT_40MS` (held at the ends: 8 below 8 units, 50 above 50)."""
+    import re
+
+    m = re.fullmatch(r"m(\d+)v(\d+)", scenario)
+    if m is None:
+        raise ValueError(f"no army size in scenario name {scenario!r}")
+    units = max(int(m.group(1)), int(m.group(2)))
+    sizes = sorted(SPARCRAFT_40MS)
+    units = min(max(units, sizes[0]), sizes[-1])
+    lo = max(n for n in sizes if n <= units)
+    hi = min(n for n in sizes if n >= units)
+    frac = 0.0 if hi == lo else (units - lo) / (hi - lo)
+    t, n = (round(a + frac * (b - a)) for a, b in zip(SPARCRAFT_40MS[lo], SPARCRAFT_40MS[hi], strict=True))
+    return {"traversals": int(t), "nodes": int(n)}
+
 
 #: How the search rows are budgeted: fixed counts (the default) or the paper's wall clock.
 SEARCH_BUDGETS = ("fixed", "wallclock")
 
 __all__ = [
     "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
-    "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
-    "TJ_DEMONSTRATOR", "Budget", "Learner",
+    "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "SPARCRAFT_40MS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
+    "TJ_DEMONSTRATOR", "Budget", "Learner", "sparcraft_40ms_budget",
 ]
