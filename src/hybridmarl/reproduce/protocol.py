@@ -34,7 +34,10 @@ Search rows
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
+
+import numpy as np
 
 #: Seed of the start states of every reported evaluation (see the module docstring): far from
 #: the training seeds and from their ``seed + 1`` / ``seed + 2`` evaluation states.
@@ -213,19 +216,14 @@ def sparcraft_40ms_budget(scenario: str) -> dict[str, int]:
     """``{"traversals": T, "nodes": N}``: what SparCraft searches in 40 ms for the larger army of
     ``scenario`` (``mAvB``), linearly interpolated between the measured army sizes of
     :data:`SPARCRAFT_40MS` (held at the ends: 8 below 8 units, 50 above 50)."""
-    import re
-
     m = re.fullmatch(r"m(\d+)v(\d+)", scenario)
     if m is None:
         raise ValueError(f"no army size in scenario name {scenario!r}")
     units = max(int(m.group(1)), int(m.group(2)))
     sizes = sorted(SPARCRAFT_40MS)
-    units = min(max(units, sizes[0]), sizes[-1])
-    lo = max(n for n in sizes if n <= units)
-    hi = min(n for n in sizes if n >= units)
-    frac = 0.0 if hi == lo else (units - lo) / (hi - lo)
-    t, n = (round(a + frac * (b - a)) for a, b in zip(SPARCRAFT_40MS[lo], SPARCRAFT_40MS[hi], strict=True))
-    return {"traversals": int(t), "nodes": int(n)}
+    # np.interp holds the end values outside the measured sizes.
+    t, n = (round(float(np.interp(units, sizes, [SPARCRAFT_40MS[k][i] for k in sizes]))) for i in (0, 1))
+    return {"traversals": t, "nodes": n}
 
 
 #: How the search rows are budgeted: fixed counts (the default) or the paper's wall clock.
