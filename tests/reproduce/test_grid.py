@@ -58,8 +58,8 @@ def test_cross_validation_and_search_budgets():
     by_row = {c.row: [g.tasks[k] for k in c.keys] for c in g.cells}
     assert by_row["D"][0].config["player"] == "attack-weakest" and by_row["D"][0].config["enemy"] == "attack-closest"
     # SparCraft's 40 ms on one core, interpolated between its 16- and 32-Marine figures for 20 units.
-    assert by_row["UCT"][0].config["player"] == "uct:script=attack-weakest,traversals=90,time_ms=0"
-    assert by_row["A-B"][0].config["player"] == "abcd:script=attack-weakest,nodes=175,time_ms=0"
+    assert by_row["UCT"][0].config["player"] == "uct:script=attack-weakest,playout1=attack-closest,traversals=90,time_ms=0"
+    assert by_row["A-B"][0].config["player"] == "abcd:script=attack-weakest,playout1=attack-closest,nodes=175,time_ms=0"
     assert by_row["Profile"][0].config["player"] == "pgs:portfolio=attack-closest+attack-weakest,time_ms=0"
     ours = by_row["Ours"]
     assert [t.config["seed"] for t in ours] == [0, 1, 2]
@@ -227,5 +227,6 @@ def test_search_budgets_are_sparcraft_40ms_by_army_size():
     assert protocol.sparcraft_40ms_budget("m60v60") == {"traversals": 25, "nodes": 50}  # held at 50
     g = expand(("table1",), "full", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("UCT", "A-B")))
     assert sorted(t.config["player"] for t in g.tasks.values()) == [
-        "abcd:script=attack-closest,nodes=350,time_ms=0", "uct:script=attack-closest,traversals=240,time_ms=0",
+        "abcd:script=attack-closest,playout1=attack-weakest,nodes=350,time_ms=0",
+        "uct:script=attack-closest,playout1=attack-weakest,traversals=240,time_ms=0",
     ]

@@ -141,10 +141,13 @@ def _combat_eval(row: str, kind: str, player: str, *, scenario: str, demonstrato
 
 
 def _search_player(row: str, demonstrator: str, options: str) -> str:
+    # The searching side orders and plays out with its demonstrator; the enemy's playouts play
+    # the enemy's script, which the cross-validation fixes (protocol docstring, "Search rows").
+    enemy = P.CROSS_ENEMY[demonstrator]
     if row == "UCT":
-        return f"uct:script={demonstrator},{options}"
+        return f"uct:script={demonstrator},playout1={enemy},{options}"
     if row == "A-B":
-        return f"abcd:script={demonstrator},{options}"
+        return f"abcd:script={demonstrator},playout1={enemy},{options}"
     return f"pgs:portfolio={P.PROFILE_PORTFOLIO},{options}"  # Profile: PGS choosing between c and w
 
 

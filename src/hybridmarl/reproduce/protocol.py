@@ -29,7 +29,11 @@ Search rows
     in the paper's 40 ms on one core (:func:`sparcraft_40ms_budget`, from the army size of the
     scenario); PGS runs its one full improvement pass (I = 1, R = 0), as SparCraft does without a
     time limit. ``--search-budget wallclock`` plays them with the paper's 40 ms per decision
-    instead.
+    instead. UCT and A-B search with the row's demonstrator (move ordering and our side's
+    playouts) and model the enemy with the enemy's own script (its playouts, SparCraft's
+    ``P1Script``): a SparCraft search player is configured with a playout script per side, and
+    in the paper's cross-validation the enemy's script is fixed and known. Searching with the
+    demonstrator on both sides instead wins far less (docs/reproducing.md#search-budgets).
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ Names: ``uct`` (aliases ``uct-cd``, ``uctcd``), ``abcd`` (``ab``, ``alphabeta``,
 Keyword ``options`` override the string's. Examples::
 
     uct:time_ms=40,traversals=5000,c=1.6
-    uct:script=attack-closest            # the paper's UCT_c: demonstrator ordering and playouts
+    uct:script=attack-closest,playout1=attack-weakest   # UCT_c as the reproduction grid plays it
     abcd:time_ms=0,nodes=500             # deterministic budget
     pgs:time_ms=0,portfolio=nokdps+kiter-dps,iterations=1,responses=0
 

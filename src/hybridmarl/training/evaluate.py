@@ -314,8 +314,8 @@ def is_search_spec(spec: str) -> bool:
 
 def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, progress: bool = False) -> dict[str, Any]:
     """The protocol for any engine player as our side of a combat task, above all the search
-    players of Table 1 (``uct:script=attack-closest`` is the paper's UCT_c, ``abcd:...`` its
-    A-B_c, ``pgs`` its "Profile"). The start states are exactly those of ``evaluate_task`` with
+    players of Table 1 (``uct:script=attack-closest,playout1=attack-weakest`` is UCT_c as
+    ``hybridmarl reproduce`` plays it, ``abcd:...`` A-B_c, ``pgs:portfolio=...`` "Profile"). The start states are exactly those of ``evaluate_task`` with
     the same ``n`` and ``seed``; each battle is played by the host loop of ``search.runner``
     (the player decides between compiled engine turns, with the global state, as in the
     paper) against the task's enemy script, under the env's own rules. W, R and the draws are
