@@ -122,7 +122,8 @@ class EvalConfig:
     """Evaluate this scripted player instead of a trained policy (e.g. the demonstrator D), or,
     in combat, a search player as in 'hybridmarl battle --p0'
     ('uct:script=attack-closest,playout1=attack-weakest' is UCT_c as 'hybridmarl reproduce'
-    plays it, 'abcd:...' A-B_c; docs/reproducing.md#search-budgets): the same start states, played turn by turn on the host."""
+    plays it, 'abcd:...' A-B_c; docs/reproducing.md#search-budgets): the same start states,
+    played turn by turn on the host."""
     env: str | None = None
     """With --script: the environment (default combat)."""
     scenario: str | None = None

@@ -140,14 +140,14 @@ def _combat_eval(row: str, kind: str, player: str, *, scenario: str, demonstrato
     })
 
 
+_TREE_SEARCH = {"UCT": "uct", "A-B": "abcd"}
+
+
 def _search_player(row: str, demonstrator: str, options: str) -> str:
-    # The searching side orders and plays out with its demonstrator; the enemy's playouts play
-    # the enemy's script, which the cross-validation fixes (protocol docstring, "Search rows").
-    enemy = P.CROSS_ENEMY[demonstrator]
-    if row == "UCT":
-        return f"uct:script={demonstrator},playout1={enemy},{options}"
-    if row == "A-B":
-        return f"abcd:script={demonstrator},playout1={enemy},{options}"
+    if row in _TREE_SEARCH:
+        # The searching side orders and plays out with its demonstrator; the enemy's playouts
+        # play the enemy's script, which the cross-validation fixes (protocol, "Search rows").
+        return f"{_TREE_SEARCH[row]}:script={demonstrator},playout1={P.CROSS_ENEMY[demonstrator]},{options}"
     return f"pgs:portfolio={P.PROFILE_PORTFOLIO},{options}"  # Profile: PGS choosing between c and w
 
 
