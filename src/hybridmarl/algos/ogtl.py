@@ -20,7 +20,7 @@
              that unlearns the imitated policy (docs/baselines.md#ogtl). ε-greedy
              exploration decays from 0.1 to 0.01 over the first quarter of the episodes (not
              given by Hu et al.). '--margin-decay-episodes 0 --lambda-margin-online 0
-             --reward-unit 1' is the former abrupt switch on raw rewards.
+             --reward-unit 1' switches abruptly from imitation to RL on raw rewards.
     Stage 3  evaluation (legal argmax of Q; 'hybridmarl eval' loads it like an actor).
 
 The machinery (buffer, losses, compiled updates, checkpoints, resume) is DQfD's ('algos.dqfd'); only
