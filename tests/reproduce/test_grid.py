@@ -66,6 +66,13 @@ def test_cross_validation_and_search_budgets():
     assert ours[0].config["overrides"] == {"brd_start": "demonstrator"} and ours[0].config["enemy"] == "attack-closest"
     wall = expand(("table1",), "cpu", "paper", Selection(scenarios=("m5v5",), rows=("A-B",), search_budget="wallclock"))
     assert all(t.config["player"].endswith("time_ms=40") for t in wall.tasks.values())
+    both_sides = expand(("table1",), "cpu", "paper", Selection(scenarios=("m18v20",), demonstrators=("w",), rows=("UCT", "A-B", "Profile"), search_model="demonstrator"))
+    players = sorted(t.config["player"] for t in both_sides.tasks.values())
+    assert players == [
+        "abcd:script=attack-weakest,nodes=175,time_ms=0",
+        "pgs:portfolio=attack-closest+attack-weakest,time_ms=0",  # PGS has no playout script per side
+        "uct:script=attack-weakest,traversals=90,time_ms=0",
+    ]
 
 
 @pytest.mark.parametrize(
@@ -77,6 +84,7 @@ def test_cross_validation_and_search_budgets():
         (["reproduce", "table1", "--scenarios", "m9v9"], "unknown scenario 'm9v9'"),
         (["reproduce", "table1", "--demonstrators", "x"], "unknown demonstrator 'x'"),
         (["reproduce", "table1", "--seeds", "a,b"], "--seeds must be comma-separated integers"),
+        (["reproduce", "table1", "--search-model", "both"], "unknown --search-model 'both'"),
         (["reproduce", "table2", "--rows", "UCT"], "leaves table2 empty"),
         (["reproduce", "table1", "--setting", "moon"], "unknown setting 'moon'"),
         (["reproduce", "table1", "--executor", "slurm"], "unknown --executor 'slurm'"),

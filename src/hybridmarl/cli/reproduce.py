@@ -52,6 +52,9 @@ class ReproduceConfig:
     search_budget: str = "fixed"
     """Search rows: fixed (deterministic traversals/nodes/playouts per decision) or wallclock
     (the paper's 40 ms per decision; results then depend on the machine)."""
+    search_model: str = "enemy"
+    """UCT and A-B rows: enemy (the enemy's playouts play its own script, known in the
+    cross-validation) or demonstrator (the row's demonstrator plays both sides' playouts)."""
     out: str | None = None
     """Output folder (default runs/reproduce-<budget>-<setting>)."""
     executor: str = "auto"
@@ -114,7 +117,7 @@ def run_reproduce(cfg: ReproduceConfig, *, live: bool | None = None) -> int:
         raise UserError("--gpus-per-train-task must be non-negative")
     sel = grid.Selection(
         scenarios=_split(cfg.scenarios), demonstrators=_demonstrators(cfg.demonstrators), rows=_split(cfg.rows),
-        seeds=_seeds(cfg.seeds), search_budget=cfg.search_budget,
+        seeds=_seeds(cfg.seeds), search_budget=cfg.search_budget, search_model=cfg.search_model,
     )
     the_grid = grid.expand(tables, cfg.budget, setting, sel, drop_empty=what == "all")
     executor = None if cfg.status else make_executor(cfg.executor, address=cfg.address, workers=cfg.workers, gpus_per_train_task=cfg.gpus_per_train_task)

@@ -109,6 +109,7 @@ class Selection:
     rows: tuple[str, ...] | None = None
     seeds: tuple[int, ...] | None = None
     search_budget: str = "fixed"
+    search_model: str = "enemy"
 
 
 def _choose(what: str, given: tuple[str, ...] | None, known: tuple[str, ...]) -> tuple[str, ...]:
@@ -143,11 +144,13 @@ def _combat_eval(row: str, kind: str, player: str, *, scenario: str, demonstrato
 _TREE_SEARCH = {"UCT": "uct", "A-B": "abcd"}
 
 
-def _search_player(row: str, demonstrator: str, options: str) -> str:
+def _search_player(row: str, demonstrator: str, options: str, model: str) -> str:
     if row in _TREE_SEARCH:
-        # The searching side orders and plays out with its demonstrator; the enemy's playouts
-        # play the enemy's script, which the cross-validation fixes (protocol, "Search rows").
-        return f"{_TREE_SEARCH[row]}:script={demonstrator},playout1={P.CROSS_ENEMY[demonstrator]},{options}"
+        # The searching side orders and plays out with its demonstrator; with model "enemy" the
+        # enemy's playouts play the enemy's script, which the cross-validation fixes (protocol,
+        # "Search rows"); with "demonstrator" they play the demonstrator too.
+        enemy_playouts = f"playout1={P.CROSS_ENEMY[demonstrator]}," if model == "enemy" else ""
+        return f"{_TREE_SEARCH[row]}:script={demonstrator},{enemy_playouts}{options}"
     return f"pgs:portfolio={P.PROFILE_PORTFOLIO},{options}"  # Profile: PGS choosing between c and w
 
 
@@ -163,6 +166,8 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
             raise GridError(f"unknown table {t!r} (known: {', '.join(P.TABLES)}, all)")
     if sel.search_budget not in P.SEARCH_BUDGETS:
         raise GridError(f"unknown --search-budget {sel.search_budget!r} (known: {', '.join(P.SEARCH_BUDGETS)})")
+    if sel.search_model not in P.SEARCH_MODELS:
+        raise GridError(f"unknown --search-model {sel.search_model!r} (known: {', '.join(P.SEARCH_MODELS)})")
     budget = P.BUDGETS[budget_name]
     known_rows = tuple(dict.fromkeys(P.TABLE1_ROWS + P.TABLE2_ROWS + P.FIG3_CURVES))
     rows = _choose("row", sel.rows, known_rows)
@@ -175,6 +180,7 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
     grid = Grid(budget_name, setting, selection={
         "tables": list(tables), "rows": list(rows), "scenarios": list(scenarios), "demonstrators": list(letters),
         "seeds": list(seeds), "search_budget": sel.search_budget,
+        "search_model": sel.search_model,
     })
     n = budget.eval_battles
     if "table1" in tables:
@@ -188,7 +194,7 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
                     if row == "D":
                         tasks = [_combat_eval(row, "script", demo, scenario=scenario, demonstrator=demo, setting=setting, n=n)]
                     elif row in budget.search:
-                        player = _search_player(row, demo, search[row].format(**P.sparcraft_40ms_budget(scenario)))
+                        player = _search_player(row, demo, search[row].format(**P.sparcraft_40ms_budget(scenario)), sel.search_model)
                         tasks = [_combat_eval(row, "search", player, scenario=scenario, demonstrator=demo, setting=setting, n=n)]
                     else:
                         tasks = [

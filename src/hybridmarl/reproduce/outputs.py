@@ -197,7 +197,8 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
         "",
         "Each cell: ours, W or R with its 95 % interval (Wilson for W, Student-t for R), then the paper's "
         "(IJCAI 2020, Table 1). Our best of each column is in bold; * marks the paper's best. "
-        f"Every row of a column is evaluated on the same start states (seed {P.EVAL_SEED}).",
+        f"Every row of a column is evaluated on the same start states (seed {P.EVAL_SEED}). "
+        f"{_search_sentence(state.grid.selection)}",
         "",
         rendered.markdown(),
         "",
@@ -206,6 +207,14 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
         *_failure_lines(summaries),
     ]
     return doc, "\n".join(md) + "\n", rendered.html()
+
+
+def _search_sentence(selection: dict[str, Any]) -> str:
+    budget = selection.get("search_budget", "fixed")
+    model = selection.get("search_model", "enemy")
+    how = "fixed traversals and nodes per decision" if budget == "fixed" else "40 ms per decision"
+    whom = "the enemy's own script" if model == "enemy" else "the row's demonstrator"
+    return f"UCT and A-B search with {how}, playing {whom} in the enemy's playouts (--search-budget {budget}, --search-model {model})."
 
 
 def _paired(summaries: dict[tuple[str, str], dict[str, Any]], col: str, rows: list[str], primary: str, secondary: str, *, lower: bool) -> dict[str, Any] | None:

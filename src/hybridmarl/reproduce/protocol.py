@@ -33,7 +33,8 @@ Search rows
     playouts) and model the enemy with the enemy's own script (its playouts, SparCraft's
     ``P1Script``): a SparCraft search player is configured with a playout script per side, and
     in the paper's cross-validation the enemy's script is fixed and known. Searching with the
-    demonstrator on both sides instead wins far less (docs/reproducing.md#search-budgets).
+    demonstrator on both sides instead (``--search-model demonstrator``) wins far less
+    (docs/reproducing.md#search-budgets).
 """
 
 from __future__ import annotations
@@ -233,8 +234,12 @@ def sparcraft_40ms_budget(scenario: str) -> dict[str, int]:
 #: How the search rows are budgeted: fixed counts (the default) or the paper's wall clock.
 SEARCH_BUDGETS = ("fixed", "wallclock")
 
+#: Whom UCT and A-B play in the enemy's playouts: the enemy's own script (the default) or the
+#: row's demonstrator, as on our side (docs/reproducing.md#search-budgets).
+SEARCH_MODELS = ("enemy", "demonstrator")
+
 __all__ = [
     "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
-    "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "SPARCRAFT_40MS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
+    "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "SEARCH_MODELS", "SPARCRAFT_40MS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
     "TJ_DEMONSTRATOR", "Budget", "Learner", "sparcraft_40ms_budget",
 ]
