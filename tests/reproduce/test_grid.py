@@ -73,6 +73,10 @@ def test_cross_validation_and_search_budgets():
         "pgs:portfolio=attack-closest+attack-weakest,time_ms=0",  # PGS has no playout script per side
         "uct:script=attack-weakest,traversals=90,time_ms=0",
     ]
+    known = expand(("table1",), "cpu", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("A-B",), search_model="enemy-script"))
+    assert [t.config["player"] for t in known.tasks.values()] == [
+        "abcd:script=attack-closest,playout1=attack-weakest,opponent_model=attack-weakest,nodes=350,time_ms=0"
+    ]
 
 
 @pytest.mark.parametrize(

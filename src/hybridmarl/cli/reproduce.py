@@ -52,9 +52,10 @@ class ReproduceConfig:
     search_budget: str = "fixed"
     """Search rows: fixed (deterministic traversals/nodes/playouts per decision) or wallclock
     (the paper's 40 ms per decision; results then depend on the machine)."""
-    search_model: str = "enemy"
-    """UCT and A-B rows: enemy (the enemy's playouts play its own script, known in the
-    cross-validation) or demonstrator (the row's demonstrator plays both sides' playouts)."""
+    search_model: str = "enemy-playouts"
+    """What the UCT and A-B rows assume of the enemy: enemy-playouts (its own script, known in
+    the cross-validation, plays its playouts), enemy-script (also inside the tree: SparCraft's
+    opponent model) or demonstrator (the row's demonstrator plays both sides' playouts)."""
     out: str | None = None
     """Output folder (default runs/reproduce-<budget>-<setting>)."""
     executor: str = "auto"

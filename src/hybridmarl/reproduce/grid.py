@@ -109,7 +109,7 @@ class Selection:
     rows: tuple[str, ...] | None = None
     seeds: tuple[int, ...] | None = None
     search_budget: str = "fixed"
-    search_model: str = "enemy"
+    search_model: str = "enemy-playouts"
 
 
 def _choose(what: str, given: tuple[str, ...] | None, known: tuple[str, ...]) -> tuple[str, ...]:
@@ -146,11 +146,13 @@ _TREE_SEARCH = {"UCT": "uct", "A-B": "abcd"}
 
 def _search_player(row: str, demonstrator: str, options: str, model: str) -> str:
     if row in _TREE_SEARCH:
-        # The searching side orders and plays out with its demonstrator; with model "enemy" the
-        # enemy's playouts play the enemy's script, which the cross-validation fixes (protocol,
-        # "Search rows"); with "demonstrator" they play the demonstrator too.
-        enemy_playouts = f"playout1={P.CROSS_ENEMY[demonstrator]}," if model == "enemy" else ""
-        return f"{_TREE_SEARCH[row]}:script={demonstrator},{enemy_playouts}{options}"
+        # The searching side orders and plays out with its demonstrator. What the search assumes
+        # of the enemy (protocol, "Search rows"): its own script in its playouts
+        # ("enemy-playouts"), also in the tree ("enemy-script", SparCraft's opponent model), or
+        # the demonstrator, as on our side ("demonstrator").
+        enemy = P.CROSS_ENEMY[demonstrator]
+        knows = {"enemy-playouts": f"playout1={enemy},", "enemy-script": f"playout1={enemy},opponent_model={enemy},"}
+        return f"{_TREE_SEARCH[row]}:script={demonstrator},{knows.get(model, '')}{options}"
     return f"pgs:portfolio={P.PROFILE_PORTFOLIO},{options}"  # Profile: PGS choosing between c and w
 
 

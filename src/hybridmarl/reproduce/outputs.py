@@ -211,10 +211,13 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
 
 def _search_sentence(selection: dict[str, Any]) -> str:
     budget = selection.get("search_budget", "fixed")
-    model = selection.get("search_model", "enemy")
+    model = selection.get("search_model", "enemy-playouts")
     how = "fixed traversals and nodes per decision" if budget == "fixed" else "40 ms per decision"
-    whom = "the enemy's own script" if model == "enemy" else "the row's demonstrator"
-    return f"UCT and A-B search with {how}, playing {whom} in the enemy's playouts (--search-budget {budget}, --search-model {model})."
+    whom = {
+        "enemy-playouts": "playing the enemy's own script in its playouts",
+        "enemy-script": "assuming the enemy's own script in the tree and in its playouts",
+    }.get(model, "playing the row's demonstrator in the enemy's playouts")
+    return f"UCT and A-B search with {how}, {whom} (--search-budget {budget}, --search-model {model})."
 
 
 def _paired(summaries: dict[tuple[str, str], dict[str, Any]], col: str, rows: list[str], primary: str, secondary: str, *, lower: bool) -> dict[str, Any] | None:

@@ -33,7 +33,9 @@ Search rows
     playouts) and model the enemy with the enemy's own script (its playouts, SparCraft's
     ``P1Script``): a SparCraft search player is configured with a playout script per side, and
     in the paper's cross-validation the enemy's script is fixed and known. Searching with the
-    demonstrator on both sides instead (``--search-model demonstrator``) wins far less
+    demonstrator on both sides instead (``--search-model demonstrator``) wins far less; also
+    assuming the enemy's script inside the tree (``--search-model enemy-script``, SparCraft's
+    ``OpponentModelScript``) turns the search into planning against a known opponent
     (docs/reproducing.md#search-budgets).
 """
 
@@ -234,9 +236,10 @@ def sparcraft_40ms_budget(scenario: str) -> dict[str, int]:
 #: How the search rows are budgeted: fixed counts (the default) or the paper's wall clock.
 SEARCH_BUDGETS = ("fixed", "wallclock")
 
-#: Whom UCT and A-B play in the enemy's playouts: the enemy's own script (the default) or the
-#: row's demonstrator, as on our side (docs/reproducing.md#search-budgets).
-SEARCH_MODELS = ("enemy", "demonstrator")
+#: What UCT and A-B assume of the enemy: its own script in its playouts (the default), also as
+#: the opponent model of the tree, or the row's demonstrator in its playouts, as on our side
+#: (docs/reproducing.md#search-budgets).
+SEARCH_MODELS = ("enemy-playouts", "enemy-script", "demonstrator")
 
 __all__ = [
     "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
