@@ -169,13 +169,39 @@ def _last_line(log: Path) -> str:
     return lines[-1][:300] if lines else ""
 
 
+def _duration_keys(config: dict[str, Any], kind: str) -> tuple[tuple[str, ...], ...]:
+    """The groups a task's duration is pooled in, most specific first: the same row, kind and
+    scenario (or environment); the same row and kind; the same kind."""
+    where = str(config.get("scenario") or config.get("env", ""))
+    row = str(config.get("row", ""))
+    return (kind, row, where), (kind, row), (kind,)
+
+
+def finished_durations(out: Path, *, skip: frozenset[str] = frozenset()) -> list[tuple[dict[str, Any], str, float]]:
+    """(config, kind, wall seconds) of every finished task in the output folder, whichever
+    command ran it, except the task folders named in ``skip``: what the time left is estimated
+    from. Unreadable records are passed over."""
+    found = []
+    for result in sorted((out / "tasks").glob(f"*/{RESULT_FILE}")):
+        if result.parent.name in skip:
+            continue
+        with contextlib.suppress(OSError, ValueError, TypeError, KeyError, AttributeError):
+            r = json.loads(result.read_text())
+            found.append((dict(r["config"]), str(json.loads((result.parent / TASK_FILE).read_text())["kind"]), float(r["wall_s"])))
+    return found
+
+
 class Progress:
     """The progress display over the grid: done, running, queued and failed tasks and the
-    estimated time left (from the mean duration of finished tasks of the same kind, divided
-    among the workers). A live table on a terminal, a status line per event otherwise."""
+    estimated time left, divided among the workers. A task's expected duration is the mean wall
+    time of the finished tasks in the output folder most like it (same row, kind and scenario;
+    else same row and kind; else same kind). A live table on a terminal, a status line per
+    event otherwise."""
 
     def __init__(self, state: GridState, workers: int, *, live: bool | None = None) -> None:
         self.state, self.workers = state, max(1, workers)
+        # Finished tasks outside this command's selection; the selection's own come from state.results.
+        self._earlier = finished_durations(state.out, skip=frozenset(t.dirname for t in state.grid.tasks.values()))
         self.t0 = time.time()
         self.live = sys.stderr.isatty() if live is None else live
         self._rich: Any = None
@@ -195,16 +221,19 @@ class Progress:
 
     def eta_s(self) -> float | None:
         """Seconds left, or None while no task of a kind still to run has finished yet."""
-        durations: dict[str, list[float]] = {}
-        for key, r in self.state.results.items():
-            durations.setdefault(self.state.grid.tasks[key].kind, []).append(float(r.get("wall_s", 0.0)))
+        durations: dict[tuple[str, ...], list[float]] = {}
+        finished = list(self._earlier)
+        finished += [(self.state.grid.tasks[k].config, self.state.grid.tasks[k].kind, float(r.get("wall_s", 0.0))) for k, r in self.state.results.items()]
+        for cfg, kind, wall in finished:
+            for group in _duration_keys(cfg, kind):
+                durations.setdefault(group, []).append(wall)
         left = 0.0
         now = time.time()
         for key, t in self.state.grid.tasks.items():
             status = self.state.status(key)
             if status in ("done", "failed"):
                 continue
-            known = durations.get(t.kind)
+            known = next((durations[g] for g in _duration_keys(t.config, t.kind) if g in durations), None)
             if not known:
                 return None
             mean = sum(known) / len(known)
