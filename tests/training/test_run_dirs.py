@@ -196,3 +196,26 @@ def test_every_preset_keeps_the_rules():
             for env in ("combat", "traffic_junction"):
                 check_config(make(env))
         check_config(type(mod.PRESETS["toy"]("combat"))())
+
+
+
+def test_nan_counters_survive_a_checkpoint_as_json(tmp_path):
+    """A counter that is NaN when a checkpoint is saved (the critic's loss before its first fit,
+    in the "w/o D" presets) is written as JSON null, read back by the strict reader, and
+    restored as NaN, so the run resumes."""
+    from hybridmarl.algos.hybrid.train import HybridState
+    from hybridmarl.training.checkpoint import find_checkpoint, load_checkpoint
+
+    def state() -> HybridState:
+        return HybridState(pool=None, key=None, assembler=None, actor=None, critic=None, clone=None, buffer=None)  # type: ignore[arg-type]
+
+    saved = state()
+    saved.episodes, saved.critic_loss, saved.demo_stats = 40, float("nan"), {"won": 0.5, "R": float("nan")}
+    save_checkpoint(tmp_path, 40, {"x": np.zeros(1, np.float32)}, saved.meta())
+    text = (tmp_path / "checkpoints" / "ckpt_000000040" / "meta.json").read_text()
+    assert "NaN" not in text and '"critic_loss": null' in text
+    _, meta = load_checkpoint(find_checkpoint(tmp_path, None))
+    restored = state()
+    restored.restore_counters(meta)
+    assert restored.episodes == 40 and np.isnan(restored.critic_loss)
+    assert restored.demo_stats["won"] == 0.5 and np.isnan(restored.demo_stats["R"])

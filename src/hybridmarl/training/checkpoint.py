@@ -21,6 +21,7 @@ typed PRNG keys are stored as their uint32 key data.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import shutil
@@ -88,6 +89,18 @@ def _contiguous(arrays: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     return out
 
 
+def _json_safe(value: Any) -> Any:
+    """``value`` with every NaN or infinite float replaced by None: meta.json stays JSON (a
+    counter such as the critic's loss is NaN until the first fit), and its readers refuse NaN."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
 def checkpoint_name(step: int) -> str:
     """Directory name of checkpoint ``step`` (the training counter at save time)."""
     return f"ckpt_{int(step):09d}"
@@ -109,11 +122,11 @@ def save_checkpoint(
         save_file(_contiguous(arrays), str(tmp / "arrays.safetensors"))
         grant_umask(tmp / "arrays.safetensors")  # safetensors writes it private
         pause_point("checkpoint")
-        doc = dict(meta)
+        doc = _json_safe(dict(meta))
         doc["format_version"] = FORMAT_VERSION
         doc["step"] = int(step)
         with open(tmp / "meta.json", "w") as f:
-            json.dump(doc, f, indent=2, sort_keys=True)
+            json.dump(doc, f, indent=2, sort_keys=True, allow_nan=False)
             f.flush()
             os.fsync(f.fileno())
         if final.exists():

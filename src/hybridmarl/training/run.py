@@ -146,8 +146,19 @@ class RunState:
         for prefix, attr in {**self.BUFFERS, "asm": "assembler"}.items():
             getattr(self, attr).load_arrays(subtree(arrays, prefix))
         self.history = {k: np.asarray(v).tolist() for k, v in subtree(arrays, "history").items()}
+        self.restore_counters(meta)
+
+    def restore_counters(self, meta: dict[str, Any]) -> None:
+        """The counters of checkpoint metadata ``meta`` (those it lacks keep their values)."""
         for k in self.COUNTERS:
-            setattr(self, k, meta.get(k, getattr(self, k)))
+            default = getattr(self, k)
+            value = meta.get(k, default)
+            # A float saved while NaN is written as null (checkpoint._json_safe).
+            if value is None and isinstance(default, float):
+                value = float("nan")
+            elif isinstance(value, dict):
+                value = {name: float("nan") if v is None else v for name, v in value.items()}
+            setattr(self, k, value)
 
 
 def check_same_setting(checkpoint: Path, spec: TaskSpec) -> None:
