@@ -36,6 +36,11 @@ def test_task_counts_per_table_and_budget():
         # only its Random curves are new tasks.
         assert len(everything.tasks) == len(t1.tasks) + len(t2.tasks) + 2 * seeds
         assert set(f3.tasks) - set(t1.tasks) == {k for k, t in f3.tasks.items() if t.config["row"] == "Random"}
+    # At 'cpu' Random is 'quick-wo-d' with the one-step Q (native engine), w/o D 'quick-wo-d' as it is.
+    cpu = expand(("fig3", "table2"), "cpu", "paper", Selection(seeds=(0,)))
+    by_row = {t.config["row"]: t.config for t in cpu.tasks.values() if t.kind == "train"}
+    assert by_row["Random"]["preset"] == "quick-wo-d" and by_row["Random"]["overrides"] == {"lookahead_steps": 1}
+    assert by_row["Ours w/o D"]["preset"] == "quick-wo-d" and by_row["Ours w/o D"]["overrides"] == {}
 
 
 def test_keys_are_stable_hashes_of_the_config():
