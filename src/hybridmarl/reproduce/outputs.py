@@ -213,11 +213,7 @@ def _search_sentence(selection: dict[str, Any]) -> str:
     budget = selection.get("search_budget", "fixed")
     model = selection.get("search_model", "enemy-playouts")
     how = "fixed traversals and nodes per decision" if budget == "fixed" else "40 ms per decision"
-    whom = {
-        "enemy-playouts": "playing the enemy's own script in its playouts",
-        "enemy-script": "assuming the enemy's own script in the tree and in its playouts",
-    }.get(model, "playing the row's demonstrator in the enemy's playouts")
-    return f"UCT and A-B search with {how}, {whom} (--search-budget {budget}, --search-model {model})."
+    return f"UCT and A-B search with {how}, {P.SEARCH_MODELS[model]} (--search-budget {budget}, --search-model {model})."
 
 
 def _paired(summaries: dict[tuple[str, str], dict[str, Any]], col: str, rows: list[str], primary: str, secondary: str, *, lower: bool) -> dict[str, Any] | None:

@@ -242,10 +242,13 @@ def sparcraft_40ms_budget(scenario: str) -> dict[str, int]:
 #: How the search rows are budgeted: fixed counts (the default) or the paper's wall clock.
 SEARCH_BUDGETS = ("fixed", "wallclock")
 
-#: What UCT and A-B assume of the enemy: its own script in its playouts (the default), also as
-#: the opponent model of the tree, or the row's demonstrator in its playouts, as on our side
-#: (docs/reproducing.md#search-budgets).
-SEARCH_MODELS = ("enemy-playouts", "enemy-script", "demonstrator")
+#: What UCT and A-B assume of the enemy (``--search-model``; the first is the default), with the
+#: words Table 1's text uses for it (docs/reproducing.md#search-budgets).
+SEARCH_MODELS: dict[str, str] = {
+    "enemy-playouts": "playing the enemy's own script in its playouts",
+    "enemy-script": "assuming the enemy's own script in the tree and in its playouts",
+    "demonstrator": "playing the row's demonstrator in the enemy's playouts",
+}
 
 __all__ = [
     "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
