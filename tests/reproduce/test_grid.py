@@ -189,7 +189,13 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
     # Ours (two seeds) against the best other done row, D, on the shared start states.
     test = doc["paired_tests"]["m5v5/c"]
     assert test["against"] == "D" and test["won"]["diff"] > 0.3 and test["won"]["p"] < 0.05
-    assert [p["seed"] for p in doc["rows"]["Ours_c"]["m5v5/c"]["per_seed"]] == [0, 1]
+    ours = doc["rows"]["Ours_c"]["m5v5/c"]
+    assert [p["seed"] for p in ours["per_seed"]] == [0, 1]
+    # Over two seeds the interval is mean ± t(0.975, 1)·|w0 − w1|/2, t(0.975, 1) = 12.706.
+    w0, w1 = (p["W"] for p in ours["per_seed"])
+    half = 12.7062 * abs(w0 - w1) / 2
+    assert ours["over_seeds_ci95"]["W"] == pytest.approx([(w0 + w1) / 2 - half, (w0 + w1) / 2 + half], rel=1e-4)
+    assert "over seeds, 95 % CI W [" in md
     # A status report keeps the failure; the next run does only the failed task, and clears
     # its failure record first.
     assert [t.key for t in driver.prepare(state, retry_failed=False)] == []

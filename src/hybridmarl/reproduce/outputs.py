@@ -73,6 +73,11 @@ def cell_summary(state: GridState, cell: Cell) -> dict[str, Any]:
             per_seed=[{"seed": s, "failure_rate": r["summary"]["failure_rate"], "arrivals": r["summary"]["mean_arrivals"]} for s, r in zip(seeds, rs, strict=True)],
             per_state={"failed": _mean_over_seeds([p["failed"] for p in per]).tolist(), "arrivals": _mean_over_seeds([p["arrivals"] for p in per]).tolist()},
         )
+    if tasks[0].kind == "train" and len(rs) > 1:
+        # The pooled interval above counts battles; this one counts seeds, so it also carries
+        # the spread between training runs (Student-t over the per-seed means).
+        metrics = [m for m in out["per_seed"][0] if m != "seed"]
+        out["over_seeds_ci95"] = {m: list(t_interval(np.asarray([p[m] for p in out["per_seed"]], np.float64))[1:]) for m in metrics}
     out["search_cost"] = {k: rs[0]["summary"].get(k) for k in ("ms_per_decision", "traversals_per_decision", "nodes_per_decision", "playouts_per_decision") if rs[0]["summary"].get(k) is not None} or None
     out["wall_s"] = float(sum(r.get("wall_s", 0.0) for r in rs))
     return out
@@ -239,13 +244,19 @@ _SIGNED = frozenset({"R"})
 
 
 def _seed_lines(entries: list[tuple[str, dict[str, Any]]], metrics: tuple[str, str]) -> list[str]:
-    """One line per done learner cell: each seed's numbers."""
+    """One line per done learner cell: each seed's numbers and, with two or more seeds, a
+    Student-t interval over the seeds' means (the spread between training runs)."""
     lines = []
     for name, e in entries:
         if e.get("status") == "done" and e.get("seeds"):
             each = ", ".join(
                 f"seed {p['seed']}: " + ", ".join(f"{m.replace('_', ' ')} {_num(p[m], 3, signed=m in _SIGNED)}" for m in metrics) for p in e["per_seed"]
             )
+            spread = e.get("over_seeds_ci95")
+            if spread:
+                each += "; over seeds, 95 % CI " + ", ".join(
+                    f"{m.replace('_', ' ')} {_ci(spread[m], 3, signed=m in _SIGNED)}" for m in metrics
+                )
             lines.append(f"- {name}: {each}")
     return (["## Each seed", "", *lines, ""]) if lines else []
 
@@ -446,7 +457,7 @@ def _protocol(state: GridState) -> dict[str, Any]:
     return {
         "budget": budget.name, "budget_doc": budget.doc, "setting": state.grid.setting, "eval_seed": P.EVAL_SEED,
         "selection": state.grid.selection,
-        "intervals": "95 %: Wilson for W and failure rates (battles pooled over seeds), Student-t for R and arrivals",
+        "intervals": "95 %: Wilson for W and failure rates (battles pooled over seeds), Student-t for R and arrivals; for learners also a Student-t interval over the seeds' means (over_seeds_ci95)",
         "paired_test": "Ours vs the best other row of each column: two-sided paired t-test over the shared start states, per-state outcomes averaged over seeds",
     }
 

@@ -58,25 +58,80 @@ def evaluate_policy(task: Any, module: Any, variables: Any, script: str | None, 
     return task.summarize(ep), _per_episode(ep)
 
 
-def evaluate_search(task: Any, player: str, n: int, seed: int) -> tuple[dict[str, Any], dict[str, list[float]]]:
+#: Battles a search task has finished so far, so that a killed task resumes (search tasks take
+#: up to hours; battles are independent, so resuming gives the uninterrupted task's numbers).
+PARTIAL_FILE = "partial.json"
+#: Seconds between two saves of :data:`PARTIAL_FILE`.
+PARTIAL_EVERY_S = 60.0
+_STAT_NAMES = ("ms", "traversals", "nodes", "playouts")
+
+
+def _load_partial(path: Path | None, ident: dict[str, Any]) -> dict[str, Any]:
+    """The finished battles an earlier attempt of this task saved, or none. A file of another
+    task, or one that cannot be read, counts as none (it is only a cache)."""
+    empty = {**ident, "episodes": None, "stats": {name: [0.0, 0] for name in _STAT_NAMES}, "wall_s": 0.0, "cpu_s": 0.0}
+    if path is None:
+        return empty
+    try:
+        saved = json.loads(path.read_text())
+        if not isinstance(saved, dict) or any(saved.get(k) != v for k, v in ident.items()):
+            return empty
+        lengths = {len(v) for v in saved["episodes"].values()}
+        if len(lengths) != 1 or lengths.pop() > ident["n"] or set(saved["stats"]) != set(_STAT_NAMES):
+            return empty
+        return saved
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return empty
+
+
+def evaluate_search(
+    task: Any, player: str, n: int, seed: int, task_dir: Path | None = None
+) -> tuple[dict[str, Any], dict[str, list[float]], tuple[float, float]]:
     """A search player on the start states of ``seed`` (those of :func:`evaluate_policy`), as
-    ``training.evaluate.evaluate_player`` plays it, keeping each battle's outcome."""
+    ``training.evaluate.evaluate_player`` plays it, keeping each battle's outcome. With a
+    ``task_dir`` the finished battles are saved to :data:`PARTIAL_FILE` about every minute and a
+    later call continues after them. Returns the summary, the per-battle outcomes, and the wall
+    and CPU seconds earlier attempts spent."""
     import numpy as np
 
+    from hybridmarl.io import write_json_atomic
     from hybridmarl.training.evaluate import play_search_battles
 
-    t0 = time.time()
+    ident = {"player": player, "n": n, "seed": seed}
+    path = task_dir / PARTIAL_FILE if task_dir is not None else None
+    saved = _load_partial(path, ident)
+    before: dict[str, list[float]] = saved["episodes"] or {}
+    first = len(next(iter(before.values()))) if before else 0
+    if first:
+        print(f"{path}: {first} battles finished earlier, continuing from battle {first + 1}", flush=True)
+    t0, c0, last_save = time.time(), time.process_time(), time.time()
 
-    def log(done: int, ep: dict[str, list[float]]) -> None:
-        print(f"battle {done}/{n}: W so far {np.mean(ep['won']):.3f} ({time.time() - t0:.0f} s)", flush=True)
+    def merged(ep: dict[str, list[float]], decisions: list[Any]) -> dict[str, Any]:
+        stats = {name: list(saved["stats"][name]) for name in _STAT_NAMES}
+        for d in decisions:
+            for name in _STAT_NAMES:
+                stats[name][0] += float(getattr(d, name))
+                stats[name][1] += 1
+        return {
+            **ident, "episodes": {k: [*before.get(k, []), *map(float, v)] for k, v in ep.items()}, "stats": stats,
+            "wall_s": saved["wall_s"] + time.time() - t0, "cpu_s": saved["cpu_s"] + time.process_time() - c0,
+        }
 
-    ep, decisions = play_search_battles(task, player, n=n, seed=seed, on_battle=log)
-    summary = task.summarize(ep)
-    stats = [d.as_dict() for d in decisions]
-    for name in ("ms", "traversals", "nodes", "playouts"):
-        values = [float(s[name]) for s in stats if name in s]
-        summary[f"{name}_per_decision"] = float(np.mean(values)) if values else None
-    return summary, _per_episode(ep)
+    def on_battle(done: int, ep: dict[str, list[float]], decisions: list[Any]) -> None:
+        nonlocal last_save
+        won = [*before.get("won", []), *ep["won"]]
+        print(f"battle {done}/{n}: W so far {np.mean(won):.3f} ({time.time() - t0:.0f} s)", flush=True)
+        if path is not None and done < n and time.time() - last_save >= PARTIAL_EVERY_S:
+            write_json_atomic(path, merged(ep, decisions))
+            last_save = time.time()
+
+    ep, decisions = play_search_battles(task, player, n=n, seed=seed, first=first, on_battle=on_battle)
+    total = merged({k: v.tolist() for k, v in ep.items()}, decisions)
+    summary = task.summarize({k: np.asarray(v) for k, v in total["episodes"].items()})
+    for name in _STAT_NAMES:
+        value, count = total["stats"][name]
+        summary[f"{name}_per_decision"] = value / count if count else None
+    return summary, _per_episode(total["episodes"]), (saved["wall_s"], saved["cpu_s"])
 
 
 def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, Any], dict[str, list[float]], dict[str, Any]]:
@@ -128,7 +183,8 @@ def run_task(task_dir: Path) -> dict[str, Any]:
     if kind == "train":
         summary, per_episode, training = train_then_evaluate(c, task_dir)
     elif kind == "search":
-        summary, per_episode = evaluate_search(make_task(_spec(c)), c["player"], c["n"], c["eval_seed"])
+        summary, per_episode, (wall_before, cpu_before) = evaluate_search(make_task(_spec(c)), c["player"], c["n"], c["eval_seed"], task_dir)
+        wall0, cpu0 = wall0 - wall_before, cpu0 - cpu_before
     elif kind == "script":
         summary, per_episode = evaluate_policy(make_task(_spec(c)), None, None, c["player"], c["n"], c["eval_seed"])
     else:
@@ -139,6 +195,7 @@ def run_task(task_dir: Path) -> dict[str, Any]:
         "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "version": __version__,
     }
     write_json_atomic(task_dir / RESULT_FILE, result)
+    (task_dir / PARTIAL_FILE).unlink(missing_ok=True)
     return result
 
 

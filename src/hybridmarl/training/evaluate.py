@@ -327,7 +327,7 @@ def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, pro
 
         bar = Progress(n, f"{player} vs {task.spec.enemy}", every_s=30.0)
 
-    def on_battle(done: int, ep: dict[str, list[float]]) -> None:
+    def on_battle(done: int, ep: dict[str, list[float]], decisions: list[Any]) -> None:
         if bar is not None:
             bar.update(done, f"W {np.mean(ep['won']):.2f}")
 
@@ -340,12 +340,20 @@ def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, pro
 
 
 def play_search_battles(
-    task: Task, player: str, *, n: int, seed: int, on_battle: Callable[[int, dict[str, list[float]]], None] | None = None
+    task: Task,
+    player: str,
+    *,
+    n: int,
+    seed: int,
+    first: int = 0,
+    on_battle: Callable[[int, dict[str, list[float]], list[Any]], None] | None = None,
 ) -> tuple[dict[str, np.ndarray], list[Any]]:
     """The battles of :func:`evaluate_player`: per-battle ``won``, ``lost``, ``draw``,
-    ``terminal_hp_reward`` and ``steps`` arrays ``[n]``, and the search statistics of every
-    decision of our side (``search.base.SearchStats``). ``on_battle(i, so_far)`` is called after
-    battle ``i`` (1-based) with the lists so far."""
+    ``terminal_hp_reward`` and ``steps`` arrays, and the search statistics of every decision of
+    our side (``search.base.SearchStats``). Battle ``i`` depends only on start state ``i`` and
+    seed ``seed + i``, so ``first`` skips battles ``0 .. first-1`` (those of an interrupted
+    series) and the arrays hold battles ``first .. n-1``. ``on_battle(i, so_far, decisions)``
+    is called after battle ``i`` (1-based) with the lists of this call so far."""
     from hybridmarl.engine.rules import hp_sums
     from hybridmarl.search import make_player
     from hybridmarl.search.runner import play_game_with_players
@@ -358,7 +366,7 @@ def play_search_battles(
     ours, enemy = make_player(player), make_player(task.spec.enemy)
     ep: dict[str, list[float]] = {k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")}
     decisions: list[Any] = []
-    for i in range(n):
+    for i in range(first, n):
         start = jax.tree.map(lambda a, i=i: a[i], states)
         g = play_game_with_players(start.game, env.rules, ours, enemy, seed=seed + i)
         hp = np.asarray(hp_sums(g.final_state))
@@ -370,7 +378,7 @@ def play_search_battles(
         ep["steps"].append(float(len(g.decisions[0])))
         decisions += list(g.decisions[0])
         if on_battle is not None:
-            on_battle(i + 1, ep)
+            on_battle(i + 1, ep, decisions)
     return {k: np.asarray(v) for k, v in ep.items()}, decisions
 
 
