@@ -191,10 +191,13 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
     assert test["against"] == "D" and test["won"]["diff"] > 0.3 and test["won"]["p"] < 0.05
     ours = doc["rows"]["Ours_c"]["m5v5/c"]
     assert [p["seed"] for p in ours["per_seed"]] == [0, 1]
-    # Over two seeds the interval is mean ± t(0.975, 1)·|w0 − w1|/2, t(0.975, 1) = 12.706.
-    w0, w1 = (p["W"] for p in ours["per_seed"])
-    half = 12.7062 * abs(w0 - w1) / 2
-    assert ours["over_seeds_ci95"]["W"] == pytest.approx([(w0 + w1) / 2 - half, (w0 + w1) / 2 + half], rel=1e-4)
+    # Over two seeds the interval is mean ± t(0.975, 1)·|x0 − x1|/2, t(0.975, 1) = 12.706; a
+    # rate's interval is clipped to [0, 1], a reward's is not.
+    for metric, clip in (("W", (0.0, 1.0)), ("R", (-np.inf, np.inf))):
+        x0, x1 = (p[metric] for p in ours["per_seed"])
+        half = 12.7062 * abs(x0 - x1) / 2
+        expected = [max((x0 + x1) / 2 - half, clip[0]), min((x0 + x1) / 2 + half, clip[1])]
+        assert ours["over_seeds_ci95"][metric] == pytest.approx(expected, rel=1e-4), metric
     assert "over seeds, 95 % CI W [" in md
     # A status report keeps the failure; the next run does only the failed task, and clears
     # its failure record first.
