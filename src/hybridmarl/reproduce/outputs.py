@@ -80,10 +80,11 @@ def cell_summary(state: GridState, cell: Cell) -> dict[str, Any]:
     if tasks[0].kind == "train" and len(rs) > 1:
         # The pooled interval above counts battles; this one counts seeds, so it also carries
         # the spread between training runs (Student-t over the per-seed means).
-        metrics = [m for m in out["per_seed"][0] if m != "seed"]
-        spread = {m: list(t_interval(np.asarray([p[m] for p in out["per_seed"]], np.float64))[1:]) for m in metrics}
-        # A rate's interval stays within [0, 1], where the t interval of 3 seeds can overshoot.
-        out["over_seeds_ci95"] = {m: [max(lo, 0.0), min(hi, 1.0)] if m in _RATES else [lo, hi] for m, (lo, hi) in spread.items()}
+        out["over_seeds_ci95"] = {}
+        for m in (m for m in out["per_seed"][0] if m != "seed"):
+            _, lo, hi = t_interval(np.asarray([p[m] for p in out["per_seed"]], np.float64))
+            # A rate's interval stays within [0, 1], where the t interval of 3 seeds can overshoot.
+            out["over_seeds_ci95"][m] = [max(lo, 0.0), min(hi, 1.0)] if m in _RATES else [lo, hi]
     out["search_cost"] = {k: rs[0]["summary"].get(k) for k in ("ms_per_decision", "traversals_per_decision", "nodes_per_decision", "playouts_per_decision") if rs[0]["summary"].get(k) is not None} or None
     out["wall_s"] = float(sum(r.get("wall_s", 0.0) for r in rs))
     return out
