@@ -29,6 +29,10 @@ from hybridmarl.errors import UserError
 #: Largest user file read whole (a states, scenario, map or config file); a bigger one is a
 #: mistake (a dataset or a video passed as a config), refused before it is read.
 MAX_USER_FILE_BYTES = 256 * 1024 * 1024
+#: Largest array file (a checkpoint's or a dataset's safetensors). A DQfD or OGTL checkpoint
+#: carries its replay buffer for exact resume: at m30v30 the ``quick`` preset's is about 290 MiB
+#: and the ``paper`` preset's about 0.7 GiB, so these files get a larger bound than the others.
+MAX_ARRAY_FILE_BYTES = 8 * 1024**3
 
 
 def _umask() -> int:
@@ -79,9 +83,11 @@ def write_text_atomic(path: str | Path, text: str) -> None:
 # -- checked reads of user files ------------------------------------------------------------------
 
 
-def check_user_file(path: str | Path, what: str, error: type[UserError] = UserError) -> Path:
-    """``path`` as a Path if it names a readable regular file; else ``error`` naming ``what``
-    (e.g. "states file") and the problem."""
+def check_user_file(path: str | Path, what: str, error: type[UserError] = UserError, *, max_bytes: int | None = None) -> Path:
+    """``path`` as a Path if it names a readable regular file of at most ``max_bytes`` (default
+    :data:`MAX_USER_FILE_BYTES`); else ``error`` naming ``what`` (e.g. "states file") and the
+    problem."""
+    limit = MAX_USER_FILE_BYTES if max_bytes is None else max_bytes
     p = Path(path)
     if not p.exists():
         raise error(f"{what} {str(p)!r} not found")
@@ -92,8 +98,8 @@ def check_user_file(path: str | Path, what: str, error: type[UserError] = UserEr
     if not os.access(p, os.R_OK):
         raise error(f"{what} {str(p)!r}: permission denied")
     size = p.stat().st_size
-    if size > MAX_USER_FILE_BYTES:
-        raise error(f"{what} {str(p)!r} is {size / 2**20:.0f} MiB (at most {MAX_USER_FILE_BYTES // 2**20} MiB): not a {what}")
+    if size > limit:
+        raise error(f"{what} {str(p)!r} is {size / 2**20:.0f} MiB (at most {limit // 2**20} MiB): not a {what}")
     return p
 
 
@@ -209,6 +215,6 @@ def unflatten_named(template: Any, arrays: dict[str, np.ndarray], prefix: str = 
 
 
 __all__ = [
-    "MAX_USER_FILE_BYTES", "atomic_write", "check_output_path", "check_user_file", "flatten_named", "read_user_bytes", "read_user_json",
+    "MAX_ARRAY_FILE_BYTES", "MAX_USER_FILE_BYTES", "atomic_write", "check_output_path", "check_user_file", "flatten_named", "read_user_bytes", "read_user_json",
     "read_user_text", "unflatten_named", "write_json_atomic", "write_text_atomic",
 ]

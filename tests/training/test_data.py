@@ -216,6 +216,21 @@ def test_episode_assembler_matches_row_by_row_reference_across_checkpoints():
         assert got_wins == wins
 
 
+def test_checkpoint_arrays_get_the_array_file_bound_not_the_small_file_one(tmp_path, monkeypatch):
+    """A DQfD checkpoint carries its replay buffer (about 290 MiB at m30v30), more than the
+    bound on small user files (configs, states); it must still load, and a file beyond the
+    array bound is refused in one line."""
+    import hybridmarl.io as io
+
+    path = C.save_checkpoint(tmp_path, 1, {"buffer": np.zeros(4096, np.float32)}, {"note": 1})
+    monkeypatch.setattr(io, "MAX_USER_FILE_BYTES", 1024)  # the file is 16 KiB: over this bound
+    arrays, _ = C.load_checkpoint(path)
+    assert arrays["buffer"].shape == (4096,)
+    monkeypatch.setattr(io, "MAX_ARRAY_FILE_BYTES", 1024)
+    with pytest.raises(C.CheckpointError, match=r"checkpoint arrays .* MiB \(at most 0 MiB\)"):
+        C.load_checkpoint(path)
+
+
 def test_checkpoint_round_trip_and_pruning(tmp_path):
     tree = {"w": jnp.arange(6.0).reshape(2, 3), "flag": jnp.asarray([True, False]), "key": jax.random.key(7), "n": jnp.asarray(3, jnp.int32)}
     for step in (1, 2, 3, 4):

@@ -190,11 +190,11 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
 def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """``(arrays, meta)`` of one checkpoint directory; :class:`CheckpointError` (one line naming
     the file) for a missing, unreadable or malformed file."""
-    from hybridmarl.io import check_user_file, read_user_json
+    from hybridmarl.io import MAX_ARRAY_FILE_BYTES, check_user_file, read_user_json
 
     path = Path(path)
     meta = read_user_json(path / "meta.json", "checkpoint metadata", CheckpointError)
-    arrays_path = check_user_file(path / "arrays.safetensors", "checkpoint arrays", CheckpointError)
+    arrays_path = check_user_file(path / "arrays.safetensors", "checkpoint arrays", CheckpointError, max_bytes=MAX_ARRAY_FILE_BYTES)
     try:
         arrays = load_file(str(arrays_path))
     except Exception as e:  # safetensors raises its own error type for a malformed file

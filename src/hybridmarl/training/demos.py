@@ -238,12 +238,12 @@ def load_dataset(path: str | Path, *, expect: Task | None = None) -> Dataset:
     """Read and validate a dataset (see the module docstring). ``expect``: the task it must fit."""
     from safetensors import safe_open
 
-    from hybridmarl.io import check_user_file
+    from hybridmarl.io import MAX_ARRAY_FILE_BYTES, check_user_file
 
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"{path}: no such dataset file")
-    check_user_file(path, "dataset file", DatasetError)
+    check_user_file(path, "dataset file", DatasetError, max_bytes=MAX_ARRAY_FILE_BYTES)
     try:
         with safe_open(str(path), framework="numpy") as f:
             header = f.metadata() or {}
