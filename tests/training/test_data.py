@@ -226,6 +226,10 @@ def test_checkpoint_arrays_get_the_array_file_bound_not_the_small_file_one(tmp_p
     monkeypatch.setattr(io, "MAX_USER_FILE_BYTES", 1024)  # the file is 16 KiB: over this bound
     arrays, _ = C.load_checkpoint(path)
     assert arrays["buffer"].shape == (4096,)
+    # A policy reads only its own arrays, not the buffer beside them.
+    C.save_checkpoint(tmp_path, 2, {"buffer.rows": np.zeros(8, np.float32), "actor.params.w": np.ones(2, np.float32)}, {"note": 2})
+    only, _ = C.load_checkpoint(C.latest_checkpoint(tmp_path), prefixes=("actor", "actor_average"))
+    assert list(only) == ["actor.params.w"]
     monkeypatch.setattr(io, "MAX_ARRAY_FILE_BYTES", 1024)
     with pytest.raises(C.CheckpointError, match=r"checkpoint arrays .* MiB \(at most 0 MiB\)"):
         C.load_checkpoint(path)

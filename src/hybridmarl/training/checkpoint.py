@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from safetensors import safe_open
 from safetensors.numpy import load_file, save_file
 
 from hybridmarl.errors import UserError
@@ -187,16 +188,22 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
     raise CheckpointError(f"{run_dir}: no checkpoint {which!r} (have: {', '.join(p.name for p in kept)})")
 
 
-def load_checkpoint(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def load_checkpoint(path: str | Path, prefixes: tuple[str, ...] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """``(arrays, meta)`` of one checkpoint directory; :class:`CheckpointError` (one line naming
-    the file) for a missing, unreadable or malformed file."""
+    the file) for a missing, unreadable or malformed file. With ``prefixes`` only the arrays
+    under them are read (a policy without the replay buffer a DQfD checkpoint carries)."""
     from hybridmarl.io import MAX_ARRAY_FILE_BYTES, check_user_file, read_user_json
 
     path = Path(path)
     meta = read_user_json(path / "meta.json", "checkpoint metadata", CheckpointError)
     arrays_path = check_user_file(path / "arrays.safetensors", "checkpoint arrays", CheckpointError, max_bytes=MAX_ARRAY_FILE_BYTES)
     try:
-        arrays = load_file(str(arrays_path))
+        if prefixes is None:
+            arrays = load_file(str(arrays_path))
+        else:
+            with safe_open(str(arrays_path), framework="numpy") as f:
+                wanted = [k for k in f.keys() if any(k == p or k.startswith(p + ".") for p in prefixes)]  # noqa: SIM118
+                arrays = {k: f.get_tensor(k) for k in wanted}
     except Exception as e:  # safetensors raises its own error type for a malformed file
         raise CheckpointError(f"checkpoint arrays {str(arrays_path)!r}: unreadable ({_one_line(e)})") from None
     if meta.get("format_version") != FORMAT_VERSION:

@@ -223,7 +223,7 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, weight
     run_dir = Path(run_dir)
     doc = read_run_config(run_dir)
     ck = find_checkpoint(run_dir, checkpoint)
-    arrays, meta = load_checkpoint(ck)
+    arrays, meta = load_checkpoint(ck, prefixes=("actor", AVERAGE_PREFIX))
     spec = TaskSpec.from_dict(doc["task"])
     task = make_task(spec)
     hidden = tuple(doc["config"].get("actor_hidden", nets.ACTOR_HIDDEN))
