@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from hybridmarl.reproduce import driver
 from hybridmarl.reproduce.grid import Selection, expand
 
@@ -27,13 +29,14 @@ def test_time_left_pools_the_most_similar_finished_tasks(tmp_path):
     (out / "tasks" / "broken").mkdir()
     (out / "tasks" / "broken" / driver.RESULT_FILE).write_text("{not json")  # passed over
 
-    # Queued now: Ours at m18v20 seeds 1 and 2 (same row and scenario: 1,200 s each), BC at
-    # m18v20 seed 1 (same row, another scenario: 60 s); two workers share the 2,460 s.
+    # Queued now: Ours at m18v20 seeds 1 and 2 (same row and scenario: 1,200 s each) and BC at
+    # m18v20 seeds 1 and 2 (same row, another scenario: 60 s scaled from 10 to 38 units,
+    # 60 * 3.8 ** 1.3 = 340.3 s each); two workers share them.
     now = expand(("table1",), "cpu", "paper", Selection(scenarios=("m18v20",), demonstrators=("c",), rows=("BC", "Ours"), seeds=(1, 2)))
     state = driver.GridState(out, now)
     state.scan()
     progress = driver.Progress(state, workers=2, live=False)
-    assert progress.eta_s() == (2 * 1200.0 + 2 * 60.0) / 2
+    assert progress.eta_s() == pytest.approx((2 * 1200.0 + 2 * 340.3) / 2, abs=0.1)
 
     # A kind nothing has finished of yet: no estimate.
     search = expand(("table1",), "cpu", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("UCT",)))

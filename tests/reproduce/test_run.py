@@ -87,3 +87,21 @@ def test_ray_local_cluster_runs_the_same_task(smoke_slice, tmp_path):
     ray_cell = json.loads((out / "table1.json").read_text())["rows"]["D_c"]["m5v5/c"]
     local_cell = json.loads((smoke_slice / "table1.json").read_text())["rows"]["D_c"]["m5v5/c"]
     assert ray_cell["W"] == local_cell["W"] and ray_cell["R"] == local_cell["R"]  # the same start states
+
+
+def test_a_task_trained_earlier_counts_its_training_time(smoke_slice, tmp_path, capsys):
+    out = tmp_path / "out"
+    shutil.copytree(smoke_slice, out)
+    d = _task_dir(out, "BC-m5v5-c-s0")
+    first = json.loads((d / "result.json").read_text())
+    # As if the task had been killed after training, before writing its result.
+    (d / "result.json").unlink()
+    training = json.loads((d / "run" / "eval.json").read_text())
+    training["wall_s"] = 1000.0  # a long training, so the evaluation alone cannot reach it
+    (d / "run" / "eval.json").write_text(json.dumps(training))
+    assert main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    assert "training finished earlier" in (d / "log.txt").read_text()
+    again = json.loads((d / "result.json").read_text())
+    assert again["summary"] == first["summary"]
+    assert 1000.0 < again["wall_s"] < 1000.0 + first["wall_s"] + 60.0
+    assert again["training"]["wall_s"] == 1000.0 and again["training"]["eval_wall_s"] > 0.0

@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import datetime
 import json
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -177,6 +178,20 @@ def _duration_keys(config: dict[str, Any], kind: str) -> tuple[tuple[str, ...], 
     return (kind, row, where), (kind, row), (kind,)
 
 
+#: How a task's wall time grows with the units on the field, as ``units ** exponent``, used when a
+#: task's estimate comes from finished tasks of another scenario. Fitted to the ``cpu`` grid's
+#: measured costs (docs/results.md#table-1): a learner's per-seed time goes from m5v5 (10 units)
+#: to m24v30 (54) and m30v30 (60) about 9-11 times up (exponent 1.2-1.4); a search task, whose
+#: budget per decision is fixed, about twice (0.4); a scripted series is short either way.
+SIZE_EXPONENT: dict[str, float] = {"train": 1.3, "search": 0.5, "script": 1.0}
+
+
+def _units(config: dict[str, Any]) -> int:
+    """Units on the field of a combat task (``mAvB``: A + B); 1 for any other task."""
+    m = re.fullmatch(r"m(\d+)v(\d+)", str(config.get("scenario") or ""))
+    return int(m.group(1)) + int(m.group(2)) if m else 1
+
+
 def finished_durations(out: Path, *, skip: frozenset[str] = frozenset()) -> list[tuple[dict[str, Any], str, float]]:
     """(config, kind, wall seconds) of every finished task in the output folder, whichever
     command ran it, except the task folders named in ``skip``: what the time left is estimated
@@ -195,8 +210,8 @@ class Progress:
     """The progress display over the grid: done, running, queued and failed tasks and the
     estimated time left, divided among the workers. A task's expected duration is the mean wall
     time of the finished tasks in the output folder most like it (same row, kind and scenario;
-    else same row and kind; else same kind). A live table on a terminal, a status line per
-    event otherwise."""
+    else same row and kind, scaled to its scenario's size; else same kind, scaled). A live table
+    on a terminal, a status line per event otherwise."""
 
     def __init__(self, state: GridState, workers: int, *, live: bool | None = None) -> None:
         self.state, self.workers = state, max(1, workers)
@@ -220,13 +235,15 @@ class Progress:
         return c
 
     def eta_s(self) -> float | None:
-        """Seconds left, or None while no task of a kind still to run has finished yet."""
-        durations: dict[tuple[str, ...], list[float]] = {}
+        """Seconds left, or None while no task of a kind still to run has finished yet. A
+        duration borrowed from another scenario is scaled by the ratio of units on the field
+        (:data:`SIZE_EXPONENT`)."""
+        durations: dict[tuple[str, ...], list[tuple[float, int]]] = {}
         finished = list(self._earlier)
         finished += [(self.state.grid.tasks[k].config, self.state.grid.tasks[k].kind, float(r.get("wall_s", 0.0))) for k, r in self.state.results.items()]
         for cfg, kind, wall in finished:
             for group in _duration_keys(cfg, kind):
-                durations.setdefault(group, []).append(wall)
+                durations.setdefault(group, []).append((wall, _units(cfg)))
         left = 0.0
         now = time.time()
         for key, t in self.state.grid.tasks.items():
@@ -236,7 +253,8 @@ class Progress:
             known = next((durations[g] for g in _duration_keys(t.config, t.kind) if g in durations), None)
             if not known:
                 return None
-            mean = sum(known) / len(known)
+            units, exponent = _units(t.config), SIZE_EXPONENT.get(t.kind, 1.0)
+            mean = sum(wall * (units / n) ** exponent for wall, n in known) / len(known)
             left += max(mean - (now - self.state.running[key]), 0.0) if status == "running" else mean
         return left / self.workers
 

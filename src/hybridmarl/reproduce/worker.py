@@ -163,10 +163,12 @@ def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, An
     policy = hybridmarl.load_policy(run_dir)
     # The run's own task (scenario, setting), against the cross-validation enemy.
     spec = dataclasses.replace(policy.spec, enemy=c["enemy"]) if env == "combat" else policy.spec
+    wall0, cpu0 = time.time(), time.process_time()
     summary, per_episode = evaluate_policy(make_task(spec), policy.module, policy.variables, None, c["n"], c["eval_seed"])
     own = json.loads((run_dir / "eval.json").read_text())
     training = {k: own.get(k) for k in ("episodes", "wall_s", "cpu_s") if k in own}
     training["weights"] = policy.weights
+    training["eval_wall_s"], training["eval_cpu_s"] = time.time() - wall0, time.process_time() - cpu0
     return summary, per_episode, training
 
 
@@ -189,9 +191,15 @@ def run_task(task_dir: Path) -> dict[str, Any]:
         summary, per_episode = evaluate_policy(make_task(_spec(c)), None, None, c["player"], c["n"], c["eval_seed"])
     else:
         raise ValueError(f"unknown task kind {kind!r}")
+    wall_s, cpu_s = time.time() - wall0, time.process_time() - cpu0
+    if training is not None:
+        # The run's own clock spans every attempt (RunClock); this attempt's may hold only the
+        # evaluation of a run an earlier attempt trained.
+        wall_s = max(wall_s, float(training.get("wall_s") or 0.0) + training["eval_wall_s"])
+        cpu_s = max(cpu_s, float(training.get("cpu_s") or 0.0) + training["eval_cpu_s"])
     result = {
         "key": task["key"], "kind": kind, "config": c, "summary": summary, "per_episode": per_episode,
-        "training": training, "wall_s": time.time() - wall0, "cpu_s": time.process_time() - cpu0,
+        "training": training, "wall_s": wall_s, "cpu_s": cpu_s,
         "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "version": __version__,
     }
     write_json_atomic(task_dir / RESULT_FILE, result)
