@@ -38,8 +38,19 @@ def test_time_left_pools_the_most_similar_finished_tasks(tmp_path):
     progress = driver.Progress(state, workers=2, live=False)
     assert progress.eta_s() == pytest.approx((2 * 1200.0 + 2 * 340.3) / 2, abs=0.1)
 
-    # A kind nothing has finished of yet: no estimate.
+    # A row nothing has finished of yet: no estimate for it, and the line names it.
     search = expand(("table1",), "cpu", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("UCT",)))
     state = driver.GridState(out, search)
     state.scan()
-    assert driver.Progress(state, workers=2, live=False).eta_s() is None
+    progress = driver.Progress(state, workers=2, live=False)
+    assert progress.eta_s() is None and progress.time_left() == (0.0, ("UCT",))
+    assert "~? left" in progress.line()
+
+    # Some rows known, one not: the known part is summed and the other row named, never
+    # estimated from another row's durations (a BC run is no guide to a DQfD one).
+    mixed = expand(("table1",), "cpu", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("BC", "DQfD"), seeds=(1,)))
+    state = driver.GridState(out, mixed)
+    state.scan()
+    progress = driver.Progress(state, workers=2, live=False)
+    assert progress.eta_s() is None and progress.time_left() == (30.0, ("DQfD",))
+    assert progress.line().endswith("~30s left, plus DQfD (none finished yet)")

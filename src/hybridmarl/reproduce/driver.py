@@ -172,10 +172,11 @@ def _last_line(log: Path) -> str:
 
 def _duration_keys(config: dict[str, Any], kind: str) -> tuple[tuple[str, ...], ...]:
     """The groups a task's duration is pooled in, most specific first: the same row, kind and
-    scenario (or environment); the same row and kind; the same kind."""
+    scenario (or environment); the same row and kind. Rows of one kind differ too much in cost
+    (a BC run takes a tenth of a hybrid one) to stand in for each other."""
     where = str(config.get("scenario") or config.get("env", ""))
     row = str(config.get("row", ""))
-    return (kind, row, where), (kind, row), (kind,)
+    return (kind, row, where), (kind, row)
 
 
 #: How a task's wall time grows with the units on the field, as ``units ** exponent``, used when a
@@ -210,8 +211,8 @@ class Progress:
     """The progress display over the grid: done, running, queued and failed tasks and the
     estimated time left, divided among the workers. A task's expected duration is the mean wall
     time of the finished tasks in the output folder most like it (same row, kind and scenario;
-    else same row and kind, scaled to its scenario's size; else same kind, scaled). A live table
-    on a terminal, a status line per event otherwise."""
+    else same row and kind, scaled to its scenario's size); rows with no finished task yet are
+    named instead. A live table on a terminal, a status line per event otherwise."""
 
     def __init__(self, state: GridState, workers: int, *, live: bool | None = None) -> None:
         self.state, self.workers = state, max(1, workers)
@@ -234,9 +235,10 @@ class Progress:
             c[self.state.status(key)] += 1
         return c
 
-    def eta_s(self) -> float | None:
-        """Seconds left, or None while no task of a kind still to run has finished yet. A
-        duration borrowed from another scenario is scaled by the ratio of units on the field
+    def time_left(self) -> tuple[float, tuple[str, ...]]:
+        """Seconds left for the tasks that have an estimate, divided among the workers, and the
+        rows of those that have none yet (no task of the same row finished). A duration
+        borrowed from another scenario is scaled by the units on the field
         (:data:`SIZE_EXPONENT`)."""
         durations: dict[tuple[str, ...], list[tuple[float, int]]] = {}
         finished = list(self._earlier)
@@ -244,7 +246,7 @@ class Progress:
         for cfg, kind, wall in finished:
             for group in _duration_keys(cfg, kind):
                 durations.setdefault(group, []).append((wall, _units(cfg)))
-        left = 0.0
+        left, unknown = 0.0, []
         now = time.time()
         for key, t in self.state.grid.tasks.items():
             status = self.state.status(key)
@@ -252,19 +254,30 @@ class Progress:
                 continue
             known = next((durations[g] for g in _duration_keys(t.config, t.kind) if g in durations), None)
             if not known:
-                return None
+                row = str(t.config.get("row", t.kind))
+                if row not in unknown:
+                    unknown.append(row)
+                continue
             units, exponent = _units(t.config), SIZE_EXPONENT.get(t.kind, 1.0)
             mean = sum(wall * (units / n) ** exponent for wall, n in known) / len(known)
             left += max(mean - (now - self.state.running[key]), 0.0) if status == "running" else mean
-        return left / self.workers
+        return left / self.workers, tuple(unknown)
+
+    def eta_s(self) -> float | None:
+        """Seconds left, or None while some task still to run has no estimate."""
+        left, unknown = self.time_left()
+        return None if unknown else left
 
     def line(self) -> str:
         c = self.counts()
-        eta = self.eta_s()
-        left = "?" if eta is None else _duration(eta)
+        seconds, unknown = self.time_left()
+        left = f"~{_duration(seconds)} left"
+        if unknown:
+            # Rows with no finished task yet are named, not guessed from other rows' durations.
+            left = f"{left}, plus {', '.join(unknown)} (none finished yet)" if seconds > 0 else "~? left"
         return (
             f"reproduce: {c['done']}/{sum(c.values())} done, {c['running']} running, {c['queued']} queued, "
-            f"{c['failed']} failed; {_duration(time.time() - self.t0)} elapsed, ~{left} left"
+            f"{c['failed']} failed; {_duration(time.time() - self.t0)} elapsed, {left}"
         )
 
     def _render(self) -> Any:
