@@ -89,7 +89,7 @@ def test_ray_local_cluster_runs_the_same_task(smoke_slice, tmp_path):
     assert ray_cell["W"] == local_cell["W"] and ray_cell["R"] == local_cell["R"]  # the same start states
 
 
-def test_a_task_trained_earlier_counts_its_training_time(smoke_slice, tmp_path, capsys):
+def test_a_task_trained_earlier_counts_its_training_time(smoke_slice, tmp_path):
     out = tmp_path / "out"
     shutil.copytree(smoke_slice, out)
     d = _task_dir(out, "BC-m5v5-c-s0")

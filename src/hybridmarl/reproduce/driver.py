@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import datetime
 import json
-import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -31,6 +30,7 @@ from hybridmarl.errors import EXIT_BAD_INPUT, EXIT_DIVERGED, UserError
 from hybridmarl.io import write_json_atomic
 from hybridmarl.reproduce.executors import LOG_FILE, LocalExecutor, RayExecutor
 from hybridmarl.reproduce.grid import Grid, GridTask
+from hybridmarl.reproduce.protocol import army_sizes
 from hybridmarl.reproduce.worker import RESULT_FILE, TASK_FILE
 
 MANIFEST = "reproduce.json"
@@ -183,14 +183,14 @@ def _duration_keys(config: dict[str, Any], kind: str) -> tuple[tuple[str, ...], 
 #: task's estimate comes from finished tasks of another scenario. Fitted to the ``cpu`` grid's
 #: measured costs (docs/results.md#table-1): a learner's per-seed time goes from m5v5 (10 units)
 #: to m24v30 (54) and m30v30 (60) about 9-11 times up (exponent 1.2-1.4); a search task, whose
-#: budget per decision is fixed, about twice (0.4); a scripted series is short either way.
+#: budget per decision is fixed, about twice (0.4-0.5); a scripted series is short either way.
 SIZE_EXPONENT: dict[str, float] = {"train": 1.3, "search": 0.5, "script": 1.0}
 
 
 def _units(config: dict[str, Any]) -> int:
     """Units on the field of a combat task (``mAvB``: A + B); 1 for any other task."""
-    m = re.fullmatch(r"m(\d+)v(\d+)", str(config.get("scenario") or ""))
-    return int(m.group(1)) + int(m.group(2)) if m else 1
+    scenario = config.get("scenario")
+    return sum(army_sizes(scenario)) if scenario else 1
 
 
 def finished_durations(out: Path, *, skip: frozenset[str] = frozenset()) -> list[tuple[dict[str, Any], str, float]]:

@@ -225,14 +225,19 @@ BUDGETS: dict[str, Budget] = {
 SPARCRAFT_40MS: dict[int, tuple[int, int]] = {8: (240, 350), 16: (105, 200), 32: (45, 100), 50: (25, 50)}
 
 
+def army_sizes(scenario: str) -> tuple[int, int]:
+    """The two army sizes (A, B) of a paper scenario named ``mAvB``."""
+    m = re.fullmatch(r"m(\d+)v(\d+)", scenario)
+    if m is None:
+        raise ValueError(f"no army size in scenario name {scenario!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
 def sparcraft_40ms_budget(scenario: str) -> dict[str, int]:
     """``{"traversals": T, "nodes": N}``: what SparCraft searches in 40 ms for the larger army of
     ``scenario`` (``mAvB``), linearly interpolated between the measured army sizes of
     :data:`SPARCRAFT_40MS` (held at the ends: 8 below 8 units, 50 above 50)."""
-    m = re.fullmatch(r"m(\d+)v(\d+)", scenario)
-    if m is None:
-        raise ValueError(f"no army size in scenario name {scenario!r}")
-    units = max(int(m.group(1)), int(m.group(2)))
+    units = max(army_sizes(scenario))
     sizes = sorted(SPARCRAFT_40MS)
     # np.interp holds the end values outside the measured sizes.
     t, n = (round(float(np.interp(units, sizes, [SPARCRAFT_40MS[k][i] for k in sizes]))) for i in (0, 1))
@@ -253,5 +258,5 @@ SEARCH_MODELS: dict[str, str] = {
 __all__ = [
     "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
     "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "SEARCH_MODELS", "SPARCRAFT_40MS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
-    "TJ_DEMONSTRATOR", "Budget", "Learner", "sparcraft_40ms_budget",
+    "TJ_DEMONSTRATOR", "Budget", "Learner", "army_sizes", "sparcraft_40ms_budget",
 ]
