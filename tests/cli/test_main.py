@@ -116,3 +116,24 @@ def test_train_defaults_and_results(monkeypatch):
 
 def test_module_entry_point():
     assert cli_main.main is main
+
+
+def test_paragraph_helptext_joins_wrapped_docstring_lines() -> None:
+    from hybridmarl.cli.helptext import paragraph_helptext
+
+    doc = "First line of a field,\n    continued (3\n    seeds).\n\n    Second paragraph\n    - an item\n    --flag text"
+    assert paragraph_helptext(doc) == (
+        "First line of a field, continued (3 seeds).\n\nSecond paragraph\n- an item\n--flag text"
+    )
+
+
+def test_command_help_is_not_broken_at_source_line_ends(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # ReproduceConfig.budget's docstring wraps after "3" in the source; the help must not.
+    monkeypatch.setenv("COLUMNS", "200")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["reproduce", "--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert "cpu (quick presets, 3 seeds, 1,000 battles per row" in out

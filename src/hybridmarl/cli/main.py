@@ -117,6 +117,9 @@ def main(argv: list[str] | None = None) -> int:
     name, rest = args[0], args[1:]
     _configure_host_devices()
     from hybridmarl.cli.extras import optional_extras
+    from hybridmarl.cli.helptext import use_paragraph_helptext
+
+    use_paragraph_helptext()
 
     try:
         command = COMMANDS.get(name)
