@@ -121,9 +121,9 @@ def test_module_entry_point():
 def test_paragraph_helptext_joins_wrapped_docstring_lines() -> None:
     from hybridmarl.cli.helptext import paragraph_helptext
 
-    doc = "First line of a field,\n    continued (3\n    seeds).\n\n    Second paragraph\n    - an item\n    --flag text"
+    doc = "First line of a field,\n    continued (3\n    seeds).\n\n    Second paragraph\n    - an item, with\n    --flag text"
     assert paragraph_helptext(doc) == (
-        "First line of a field, continued (3 seeds).\n\nSecond paragraph\n- an item\n--flag text"
+        "First line of a field, continued (3 seeds).\n\nSecond paragraph\n- an item, with --flag text"
     )
 
 
@@ -137,3 +137,7 @@ def test_command_help_is_not_broken_at_source_line_ends(
     assert exit_info.value.code == 0
     out = capsys.readouterr().out
     assert "cpu (quick presets, 3 seeds, 1,000 battles per row" in out
+    # Each optional field of reproduce states its default in its docstring; tyro's own
+    # "(default: None)" would contradict it.
+    assert "Comma-separated combat scenarios (default: m5v5,m30v30,m18v20,m24v30)." in out
+    assert "(default: None)" not in out

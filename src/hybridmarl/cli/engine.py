@@ -21,6 +21,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import tyro
 
+from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.engine.backend import resolve_engine
 from hybridmarl.io import atomic_write
 
@@ -61,7 +62,7 @@ class BattleConfig:
     """An attack on a target killed earlier in the same turn: 'pass' (SparCraft DC-HEAD: the
     attacker PASSes) or 'classic' (DC-CLASSIC: cooldown spent, no damage). Default: the
     setting's."""
-    stalemate_limit: int | None = None
+    stalemate_limit: Annotated[int | None, DEFAULT_IN_DOCSTRING] = None
     """End the game after more than this many turns without an HP change. Default: the
     setting's (sparcraft: 50, DC-HEAD; paper: 200)."""
     max_turns: int = 20000

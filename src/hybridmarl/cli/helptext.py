@@ -12,14 +12,17 @@ from __future__ import annotations
 
 import inspect
 
+import tyro
+
 #: A line starting with one of these begins a new line of help even inside a paragraph (lists).
-_LINE_STARTS = ("- ", "* ", "--")
+#: A line starting with an option ("--run-dir ...") does not: docstrings wrap mid-sentence there.
+_LINE_STARTS = ("- ", "* ")
 
 
 def paragraph_helptext(docstring: str) -> str:
     """``docstring`` with its indentation removed and the lines of each paragraph joined by one
     space; blank lines still separate paragraphs, and a line starting a list item ("- ", "* ")
-    or an option ("--") still starts a new line."""
+    still starts a new line."""
     paragraphs: list[str] = []
     for block in inspect.cleandoc(docstring).split("\n\n"):
         lines = [line.strip() for line in block.splitlines() if line.strip()]
@@ -40,3 +43,8 @@ def use_paragraph_helptext() -> None:
 
     if callable(getattr(_strings, "remove_single_line_breaks", None)):
         _strings.remove_single_line_breaks = paragraph_helptext
+
+
+#: For ``Annotated[T | None, DEFAULT_IN_DOCSTRING] = None``: an option whose docstring says what
+#: leaving it unset means ("default: the run's"). tyro would add "(default: None)" after it.
+DEFAULT_IN_DOCSTRING = tyro.conf.arg(help_behavior_hint="")

@@ -32,10 +32,11 @@ import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import tyro
 
+from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
 
 # -- train -----------------------------------------------------------------------------------------------
@@ -124,11 +125,11 @@ class EvalConfig:
     ('uct:script=attack-closest,playout1=attack-weakest' is UCT_c as 'hybridmarl reproduce'
     plays it, 'abcd:...' A-B_c; docs/reproducing.md#search-budgets): the same start states,
     played turn by turn on the host."""
-    env: str | None = None
+    env: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """With --script: the environment (default combat)."""
-    scenario: str | None = None
+    scenario: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Combat scenario (default: the run's)."""
-    enemy: str | None = None
+    enemy: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Enemy script. Default: the paper's cross-validation (a model learned from c fights w and
     vice versa); for --script, attack-weakest."""
     enemy_run_dir: str | None = None
@@ -142,13 +143,13 @@ class EvalConfig:
     """Engine of a combat --script against a scripted enemy: 'native' (the default on a CPU,
     'auto') plays the same start states to the same results faster; the 'random' script always
     plays on jax (docs/engine-backends.md)."""
-    setting: str | None = None
+    setting: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Named setting (docs/engine.md#settings): 'sparcraft' or 'paper'; combat rules and
     scenario geometry, traffic_junction p_arrive. Default: the run's; for --script, sparcraft."""
-    p_arrive: float | None = None
+    p_arrive: Annotated[float | None, DEFAULT_IN_DOCSTRING] = None
     """Traffic junction arrival probability (default: the run's, or the setting's: 0.2 under
     sparcraft)."""
-    time_penalty: bool | None = None
+    time_penalty: Annotated[bool | None, DEFAULT_IN_DOCSTRING] = None
     """Traffic junction: CommNet's -0.01·τ time penalty in the reported return (default: the
     run's setting; off for --script). The failure rate does not depend on it."""
     json: bool = False
@@ -299,7 +300,7 @@ class DemosCollectConfig:
     """Combat scenario."""
     demonstrator: str = "attack-closest"
     """Demonstrator script (NAME or NAME:EPS)."""
-    enemy: str | None = None
+    enemy: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Combat enemy script (default: the cross-validation enemy of the demonstrator)."""
     n: int = 10_000
     """Observations (joint states) to record (Section 5.1: 10,000)."""
@@ -312,7 +313,7 @@ class DemosCollectConfig:
     setting: str = "sparcraft"
     """Named setting (docs/engine.md#settings): 'sparcraft' or 'paper' (combat rules and scenario
     geometry; traffic_junction p_arrive)."""
-    p_arrive: float | None = None
+    p_arrive: Annotated[float | None, DEFAULT_IN_DOCSTRING] = None
     """Traffic junction arrival probability (default: the setting's; sparcraft: 0.2)."""
     time_penalty: bool = False
     """Traffic junction: record rewards and returns with CommNet's time penalty (-0.01·τ per car

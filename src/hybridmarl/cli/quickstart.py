@@ -24,8 +24,9 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
+from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
 from hybridmarl.settings import get_setting
 
@@ -62,7 +63,7 @@ class QuickstartConfig:
     'paper' (the paper's rules and a start geometry calibrated to its demonstrator rows, Table 1)."""
     demonstrator: str = "attack-closest"
     """Demonstrator script A^D (the paper's c = attack-closest or w = attack-weakest)."""
-    enemy: str | None = None
+    enemy: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Enemy script, for training and evaluation. Default: the paper's cross-validation (a model
     learned from c fights w, and vice versa)."""
     preset: str = DEFAULT_PRESET
@@ -75,9 +76,9 @@ class QuickstartConfig:
     """Seed of training and of the evaluation's start states."""
     n: int = 100
     """Evaluation battles per policy (Section 5.1: 100)."""
-    total_episodes: int | None = None
+    total_episodes: Annotated[int | None, DEFAULT_IN_DOCSTRING] = None
     """Training episodes (default: the preset's)."""
-    run_dir: str | None = None
+    run_dir: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Where everything is written (default runs/quickstart-<scenario>-<demonstrator>-s<seed>,
     with -<preset> before -s<seed> for a preset other than quick, and -<setting> for a setting
     other than sparcraft). A finished run there is

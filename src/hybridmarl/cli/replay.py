@@ -27,12 +27,13 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
 from hybridmarl.settings import check_options, get_setting
 
@@ -57,7 +58,7 @@ class ReplayConfig:
     scenario: str = "m5v5"
     """Combat scenario: a name (m5v5, m30v30, m18v20, m24v30, m<A>v<B>-apart)
     or a scenario JSON file. Ignored for traffic_junction."""
-    ours: str | None = None
+    ours: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Our side's policy. Combat: an engine script name (default attack-closest, the paper's
     demonstrator c). Traffic Junction: a demonstrator, always-gas or
     yield-before-junction (default)."""
@@ -83,7 +84,7 @@ class ReplayConfig:
     """Named setting (docs/engine.md#settings): 'sparcraft' or 'paper'. Combat: the rules and
     the geometry of named scenarios; Traffic Junction: the arrival probability. With --run-dir:
     the run's."""
-    p_arrive: float | None = None
+    p_arrive: Annotated[float | None, DEFAULT_IN_DOCSTRING] = None
     """Traffic Junction car arrival probability per entry and step (default: the setting's;
     sparcraft: 0.2, CommNet's evaluation value). Ignored for combat."""
     time_penalty: bool = False

@@ -23,6 +23,7 @@ from typing import Annotated
 
 import tyro
 
+from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
 
 
@@ -40,14 +41,15 @@ class ReproduceConfig:
     setting: str = "paper"
     """paper (the paper's rules and calibrated geometry; Traffic Junction p_arrive 0.105) or
     sparcraft (SparCraft's current rules); docs/engine.md#settings."""
-    scenarios: str | None = None
+    scenarios: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Comma-separated combat scenarios (default: m5v5,m30v30,m18v20,m24v30)."""
-    demonstrators: str | None = None
-    """Comma-separated demonstrators, c and/or w (or attack-closest, attack-weakest)."""
-    rows: str | None = None
+    demonstrators: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
+    """Comma-separated demonstrators, c and/or w (or attack-closest, attack-weakest); default
+    both."""
+    rows: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Comma-separated rows (Table 1: D,UCT,A-B,Profile,BC,DQfD,OGTL,Ours; Table 2: D,BC,'Ours
     w/o D',Ours; Fig. 3: Random,BC,DQfD,OGTL,Ours). Default: all of them."""
-    seeds: str | None = None
+    seeds: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Comma-separated training seeds of the learner rows (default: the budget's)."""
     search_budget: str = "fixed"
     """Search rows: fixed (deterministic traversals/nodes/playouts per decision) or wallclock
@@ -56,14 +58,14 @@ class ReproduceConfig:
     """What the UCT and A-B rows assume of the enemy: enemy-playouts (its own script, known in
     the cross-validation, plays its playouts), enemy-script (also inside the tree: SparCraft's
     opponent model) or demonstrator (the row's demonstrator plays both sides' playouts)."""
-    out: str | None = None
+    out: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Output folder (default runs/reproduce-<budget>-<setting>)."""
     executor: str = "auto"
     """auto (ray when installed), ray, or local (tasks as child processes on this machine)."""
-    address: str | None = None
+    address: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Ray cluster to join (HOST:PORT, ray://HOST:PORT or auto); default: start a local one.
     The output folder must be visible to every node."""
-    workers: int | None = None
+    workers: Annotated[int | None, DEFAULT_IN_DOCSTRING] = None
     """Tasks run at the same time (local default 1; Ray default: the cluster's CPUs)."""
     gpus_per_train_task: float = 0.0
     """Ray: GPUs each training task asks for (0: training on the CPU)."""

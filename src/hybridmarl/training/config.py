@@ -19,13 +19,14 @@ import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Annotated, Any, ClassVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from tyro.conf import OmitArgPrefixes
 
+from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import TrainingDiverged
 from hybridmarl.settings import check_options, get_setting
 from hybridmarl.training.task import (
@@ -65,7 +66,7 @@ class TaskOptions(Options):
     'attack-weakest' = w, Section 5.1; traffic_junction: 'always-gas' or
     'yield-before-junction'), optionally NAME:EPS for ε-random legal actions, or the path of a
     demonstration dataset ('hybridmarl demos collect'), which is then cloned (BC)."""
-    enemy: str | None = None
+    enemy: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Combat enemy script during training. Default: the other heuristic (c <-> w), the paper's
     cross-validation setting (Section 5.1)."""
     setting: str = "sparcraft"
@@ -73,7 +74,7 @@ class TaskOptions(Options):
     r=100 px centred 150 px apart; traffic_junction p_arrive 0.2) or 'paper' (classic overkill,
     stalemate limit 200, the geometry calibrated to the paper's demonstrators, Table 1; for
     traffic_junction the p_arrive at which always-gas fails as often as the paper's D, Table 2)."""
-    p_arrive: float | None = None
+    p_arrive: Annotated[float | None, DEFAULT_IN_DOCSTRING] = None
     """Traffic junction arrival probability. Default: the setting's (0.2 under 'sparcraft', the
     evaluation value of CommNet's medium task, Section 5.3)."""
     time_penalty: bool = False
@@ -92,9 +93,9 @@ class RunOptions(Options):
 
     seed: int = 0
     """Seed of everything random (start states, network initialisation, minibatches)."""
-    run_dir: str | None = None
+    run_dir: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Where logs and checkpoints go. Default runs/<name>."""
-    name: str | None = None
+    name: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Run name (default <algo>-<env or scenario>-<demonstrator>-s<seed>)."""
     resume: bool = False
     """Continue from the newest checkpoint in the run directory (exactly as if uninterrupted)."""
@@ -116,7 +117,7 @@ class EvalOptions(Options):
 
     eval_episodes: int = 100
     """Battles / episodes of the final evaluation (paper Section 5.1: 100 battles)."""
-    eval_enemy: str | None = None
+    eval_enemy: Annotated[str | None, DEFAULT_IN_DOCSTRING] = None
     """Combat enemy of the final evaluation. Default: the paper's cross-validation (a model
     learned from c fights w and vice versa, Section 5.1)."""
     eval_every: int = 0
