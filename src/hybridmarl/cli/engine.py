@@ -21,9 +21,9 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import tyro
 
-from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.engine.backend import resolve_engine
 from hybridmarl.io import atomic_write
+from hybridmarl.options import DEFAULT_IN_DOCSTRING
 
 
 @dataclass(frozen=True)

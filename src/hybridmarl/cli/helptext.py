@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import inspect
 
-import tyro
-
 #: A line starting with one of these begins a new line of help even inside a paragraph (lists).
 #: A line starting with an option ("--run-dir ...") does not: docstrings wrap mid-sentence there.
 _LINE_STARTS = ("- ", "* ")
@@ -43,8 +41,3 @@ def use_paragraph_helptext() -> None:
 
     if callable(getattr(_strings, "remove_single_line_breaks", None)):
         _strings.remove_single_line_breaks = paragraph_helptext
-
-
-#: For ``Annotated[T | None, DEFAULT_IN_DOCSTRING] = None``: an option whose docstring says what
-#: leaving it unset means ("default: the run's"). tyro would add "(default: None)" after it.
-DEFAULT_IN_DOCSTRING = tyro.conf.arg(help_behavior_hint="")

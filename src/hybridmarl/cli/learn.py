@@ -36,8 +36,8 @@ from typing import Annotated, Any, Literal
 
 import tyro
 
-from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
+from hybridmarl.options import DEFAULT_IN_DOCSTRING
 
 # -- train -----------------------------------------------------------------------------------------------
 

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
-from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
+from hybridmarl.options import DEFAULT_IN_DOCSTRING
 from hybridmarl.settings import get_setting
 
 #: The paper's Table 1 (W, R) of the demonstrator D and of "Ours", by (scenario, demonstrator).

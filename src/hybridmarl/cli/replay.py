@@ -33,8 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
+from hybridmarl.options import DEFAULT_IN_DOCSTRING
 from hybridmarl.settings import check_options, get_setting
 
 __all__ = [

@@ -23,8 +23,8 @@ from typing import Annotated
 
 import tyro
 
-from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import UserError
+from hybridmarl.options import DEFAULT_IN_DOCSTRING
 
 
 @dataclass(frozen=True)

@@ -26,8 +26,8 @@ import jax.numpy as jnp
 import numpy as np
 from tyro.conf import OmitArgPrefixes
 
-from hybridmarl.cli.helptext import DEFAULT_IN_DOCSTRING
 from hybridmarl.errors import TrainingDiverged
+from hybridmarl.options import DEFAULT_IN_DOCSTRING
 from hybridmarl.settings import check_options, get_setting
 from hybridmarl.training.task import (
     TaskError,

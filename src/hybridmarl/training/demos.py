@@ -183,7 +183,7 @@ def _native_collector(task: Task, demonstrator: str, num_envs: int, chunk: int):
     """``_collector`` on the native engine: the same chunks (``rollout_native``: the same start
     states and steps as ``pool_steps``), with the observations, legal actions and active agents
     of the recorded states computed in one jitted call per chunk."""
-    from hybridmarl.algos.hybrid.rollout_native import NativeScriptRollout
+    from hybridmarl.training.rollout_native import NativeScriptRollout
 
     rollout = NativeScriptRollout(task, demonstrator, num_envs=num_envs, steps=chunk)
     per_state = jax.vmap(jax.vmap(lambda s: (task.observe(s), task.avail(s), task.env.agent_active(s))))

@@ -14,7 +14,7 @@ steps as a host loop instead of one 'lax.scan': per env step one jitted call for
 actions, one host call for the whole of Alg. 1 on the native engine ('brd_native'), and one
 jitted call for the actor update (on the rows of the agents that have a choice only, gathered
 and padded to a few fixed sizes: the same loss) and the env step; and with a script A^D,
-'demo_chunk' plays Phase 2's games on the native engine ('rollout_native': the same chunk).
+'demo_chunk' plays Phase 2's games on the native engine ('training.rollout_native': the same chunk).
 
 'build_learner' caches learners under 'training.config.compile_key' of the config, so runs that
 differ only in run-only fields (seed, budgets, paths, cadences) share compiled programs.
@@ -76,7 +76,7 @@ class Learner:
         self.timing: dict[str, float] = {}
         if self.engine == "native":
             from hybridmarl.algos.hybrid.brd_native import NativeBRD
-            from hybridmarl.algos.hybrid.rollout_native import (
+            from hybridmarl.training.rollout_native import (
                 NativeScriptRollout,
                 native_rollout_support,
             )

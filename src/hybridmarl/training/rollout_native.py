@@ -1,10 +1,12 @@
-"""Phase 2's demonstrator games on the native engine: a script A^D against the enemy script.
+"""Script games on the native engine, in the chunks of ``training.rollout.pool_steps``: a script
+against the enemy script, for Phase 2's demonstrator games (the hybrid learner's ``demo_chunk``)
+and for recording demonstrations (``training.demos``).
 
-``Learner.demo_chunk`` on the JAX engine is ``pool_steps`` with the demonstrator script acting:
-``chunk_steps`` steps of all B games in one ``lax.scan``, a finished game replaced at once by a
-fresh start state. :class:`NativeScriptRollout` plays the same chunk on the native engine: one
-parallel Numba call per env step for all games (``envs.combat.native.step_scripted_games``),
-the pre-step state of every game recorded on the host.
+On the JAX engine such a chunk is ``pool_steps`` with the script acting: ``chunk_steps`` steps of
+all B games in one ``lax.scan``, a finished game replaced at once by a fresh start state.
+:class:`NativeScriptRollout` plays the same chunk on the native engine: one parallel Numba call
+per env step for all games (``envs.combat.native.step_scripted_games``), the pre-step state of
+every game recorded on the host.
 
 The pool semantics are those of ``pool_steps``: the chunk's start states come from the task's own
 ``reset``, drawn in one jitted call per chunk from the pool's key stream split exactly as

@@ -11,8 +11,8 @@ import jax
 import numpy as np
 
 from hybridmarl.algos.hybrid.config import PRESETS
-from hybridmarl.algos.hybrid.rollout_native import NativeScriptRollout, native_rollout_support
 from hybridmarl.training.rollout import EpisodeAssembler, new_pool, pool_steps
+from hybridmarl.training.rollout_native import NativeScriptRollout, native_rollout_support
 from hybridmarl.training.task import flatten_named, make_task
 
 NUM_ENVS, STEPS = 12, 16
