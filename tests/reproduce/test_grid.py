@@ -153,14 +153,14 @@ def test_output_folder_of_another_setting_is_refused(tmp_path, capsys):
     assert "holds no reproduce.json" in capsys.readouterr().err
 
 
-def _fake_result(state: driver.GridState, task: grid.GridTask, rng: np.random.Generator, win_p: float) -> None:
+def _fake_result(state: driver.GridState, task: grid.GridTask, rng: np.random.Generator, win_p: float, cpu_s: float = 60.0) -> None:
     n = task.config["n"]
     won = (rng.random(n) < win_p).astype(float).tolist()
     hp = rng.normal(0.2 if win_p > 0.5 else -0.2, 0.1, n).tolist()
     d = state.task_dir(task)
     d.mkdir(parents=True, exist_ok=True)
     write_json_atomic(d / "result.json", {
-        "key": task.key, "kind": task.kind, "config": task.config, "wall_s": 1.0,
+        "key": task.key, "kind": task.kind, "config": task.config, "wall_s": 1.0, "cpu_s": cpu_s,
         "summary": {"W": float(np.mean(won)), "R": float(np.mean(hp))}, "per_episode": {"won": won, "terminal_hp_reward": hp},
     })
 
@@ -172,9 +172,9 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
     assert len(driver.prepare(state)) == 4  # D, Profile, Ours seeds 0 and 1
     rng = np.random.default_rng(0)
     by_row = {c.row: [g.tasks[k] for k in c.keys] for c in g.cells}
-    _fake_result(state, by_row["D"][0], rng, 0.3)
-    _fake_result(state, by_row["Ours"][0], rng, 0.9)
-    _fake_result(state, by_row["Ours"][1], rng, 0.9)
+    _fake_result(state, by_row["D"][0], rng, 0.3, cpu_s=30.0)
+    _fake_result(state, by_row["Ours"][0], rng, 0.9, cpu_s=240.0)
+    _fake_result(state, by_row["Ours"][1], rng, 0.9, cpu_s=120.0)
     # A result of another task, or a truncated one, does not count as done.
     bad = state.task_dir(by_row["Profile"][0]) / "result.json"
     write_json_atomic(bad, {"key": "someoneelse", "summary": {}, "per_episode": {"won": [1.0]}})
@@ -199,6 +199,10 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
         expected = [max((x0 + x1) / 2 - half, clip[0]), min((x0 + x1) / 2 + half, clip[1])]
         assert ours["over_seeds_ci95"][metric] == pytest.approx(expected, rel=1e-4), metric
     assert "over seeds, 95 % CI W [" in md
+    # The cost table: CPU minutes per task, min–max over a learner's seeds; none for a failed cell.
+    cost = md[md.index("## Cost"):].splitlines()
+    assert "| D_c | 0.5 |" in cost and "| Ours_c | 2.0–4.0 |" in cost and "| Profile_c |  |" in cost
+    assert ours["cpu_s"] == 360.0 and ours["cpu_s_per_task"] == [240.0, 120.0]
     # A status report keeps the failure; the next run does only the failed task, and clears
     # its failure record first.
     assert [t.key for t in driver.prepare(state, retry_failed=False)] == []

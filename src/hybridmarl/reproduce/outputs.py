@@ -87,6 +87,8 @@ def cell_summary(state: GridState, cell: Cell) -> dict[str, Any]:
             out["over_seeds_ci95"][m] = [max(lo, 0.0), min(hi, 1.0)] if m in _RATES else [lo, hi]
     out["search_cost"] = {k: rs[0]["summary"].get(k) for k in ("ms_per_decision", "traversals_per_decision", "nodes_per_decision", "playouts_per_decision") if rs[0]["summary"].get(k) is not None} or None
     out["wall_s"] = float(sum(r.get("wall_s", 0.0) for r in rs))
+    out["cpu_s"] = float(sum(r.get("cpu_s", 0.0) for r in rs))
+    out["cpu_s_per_task"] = [float(r.get("cpu_s", 0.0)) for r in rs]
     return out
 
 
@@ -204,6 +206,11 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
             if test:
                 doc["paired_tests"][col] = test
     rendered = Rendered(header, rendered_rows)
+    cost = cost_table(
+        {(col.split("/")[0], f"{row}_{col.split('/')[1]}"): sm for (col, row), sm in summaries.items()},
+        scenarios,
+        [(name, name) for name in (line[0][0] for line in rendered_rows)],
+    )
     md = [
         f"# Table 1 (budget {state.grid.budget}, setting {state.grid.setting})",
         "",
@@ -216,9 +223,10 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
         "",
         *_seed_lines([(f"{name} {col}", e) for name, cols in doc["rows"].items() for col, e in cols.items()], ("W", "R")),
         *_test_lines(doc["paired_tests"], "W", "R"),
+        *_cost_lines(cost),
         *_failure_lines(summaries),
     ]
-    return doc, "\n".join(md) + "\n", rendered.html()
+    return doc, "\n".join(md) + "\n", rendered.html() + _cost_html(cost)
 
 
 def _search_sentence(selection: dict[str, Any]) -> str:
@@ -282,6 +290,42 @@ def _test_lines(tests: dict[str, Any], m1: str, m2: str) -> list[str]:
     return [*lines, ""]
 
 
+_COST_NOTE = (
+    "CPU minutes per task (process time of training, when the row learns, and of the evaluation "
+    "battles), as each task's result.json records it; min–max over a learner's seeds. Wall time "
+    "depends on the machine's load; the JSON output has both."
+)
+
+
+def cost_table(summaries: dict[tuple[str, str], dict[str, Any]], columns: list[str], rows: list[tuple[str, str]]) -> Rendered | None:
+    """CPU minutes per task for ``rows`` (name, row key) x ``columns``: one number for a single
+    task, min–max over a learner's seeds; None when no cell is done."""
+    table: list[list[tuple[str, bool]]] = []
+    for name, row in rows:
+        line: list[tuple[str, bool]] = [(name, False)]
+        for col in columns:
+            s = summaries.get((col, row))
+            per = [x / 60.0 for x in s.get("cpu_s_per_task", [])] if s and s["status"] == "done" else []
+            if not per:
+                line.append(("", False))
+            elif round(min(per), 1) == round(max(per), 1):
+                line.append((f"{min(per):.1f}", False))
+            else:
+                line.append((f"{min(per):.1f}–{max(per):.1f}", False))
+        table.append(line)
+    if not any(t for line in table for t, _ in line[1:]):
+        return None
+    return Rendered(["row", *columns], table)
+
+
+def _cost_lines(cost: Rendered | None) -> list[str]:
+    return ["## Cost", "", _COST_NOTE, "", cost.markdown(), ""] if cost else []
+
+
+def _cost_html(cost: Rendered | None) -> str:
+    return f"<h3>Cost</h3><p>{html.escape(_COST_NOTE)}</p>{cost.html()}" if cost else ""
+
+
 def _failure_lines(summaries: dict[Any, dict[str, Any]]) -> list[str]:
     lines = []
     for (col, row), s in summaries.items():
@@ -322,6 +366,7 @@ def table2(state: GridState) -> tuple[dict[str, Any], str, str]:
     if test:
         doc["paired_tests"]["tj"] = test
     rendered = Rendered(["row", "failure rate [95 % CI]", "paper failure rate", "arrivals / episode [95 % CI]"], out_rows)
+    cost = cost_table(summaries, ["tj"], [(r, r) for r in rows])
     md = [
         f"# Table 2, Traffic Junction (budget {state.grid.budget}, setting {state.grid.setting})",
         "",
@@ -335,9 +380,10 @@ def table2(state: GridState) -> tuple[dict[str, Any], str, str]:
         "",
         *_seed_lines(list(doc["rows"].items()), ("failure_rate", "arrivals")),
         *_test_lines(doc["paired_tests"], "failure rate", "arrivals"),
+        *_cost_lines(cost),
         *_failure_lines(summaries),
     ]
-    return doc, "\n".join(md) + "\n", rendered.html()
+    return doc, "\n".join(md) + "\n", rendered.html() + _cost_html(cost)
 
 
 # -- Fig. 3 ---------------------------------------------------------------------------------------
@@ -494,4 +540,4 @@ def _report(state: GridState, manifest: dict[str, Any], sections: list[str]) -> 
     return f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>hybridmarl reproduction</title><style>{style}</style></head><body>{head}{''.join(sections)}{replays}</body></html>\n"
 
 
-__all__ = ["REPLAY_PLACEHOLDER", "cell_summary", "fig3", "paired_test", "table1", "table2", "write_outputs"]
+__all__ = ["REPLAY_PLACEHOLDER", "cell_summary", "cost_table", "fig3", "paired_test", "table1", "table2", "write_outputs"]
