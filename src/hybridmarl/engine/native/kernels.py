@@ -603,26 +603,55 @@ def winner(utype, hp):
     return -1
 
 
-@njit(cache=True)
-def ltd2_eval(utype, hp, ltd2_total):
-    """``evaluate(state, 0, "ltd2")``: LTD2 difference in float32 plus the +-100000 bonus."""
-    score = np.zeros(2, np.int64)
+@njit(cache=True, inline="always")
+def side_scores(utype, hp, totals, use_ltd):
+    """LTD2 (or LTD) of both sides: int(1000 * sum / total), the sum in float32 in slot order;
+    0 for a side with no living unit or a zero total (``rules.ltd2`` / ``rules.ltd``)."""
+    s0 = 0
+    s1 = 0
     for p in range(2):
         acc = np.float32(0.0)
         any_alive = False
         for s in range(hp.shape[1]):
             if hp[p, s] > 0:
                 any_alive = True
-                acc = acc + np.sqrt(np.float32(hp[p, s])) * DPF[utype[p, s]]
-        total = ltd2_total[p]
+                if use_ltd:
+                    acc = acc + np.float32(hp[p, s]) * DPF[utype[p, s]]
+                else:
+                    acc = acc + np.sqrt(np.float32(hp[p, s])) * DPF[utype[p, s]]
+        total = totals[p]
+        v = 0
         if any_alive and total > 0:
-            score[p] = int(np.float32(1000.0) * acc / total)
+            v = int(np.float32(1000.0) * acc / total)
+        if p == 0:
+            s0 = v
+        else:
+            s1 = v
+    return s0, s1
+
+
+@njit(cache=True, inline="always")
+def evaluate(utype, hp, totals, use_ltd, p):
+    """``rules.evaluate(state, p)``: score difference plus the +-100000 bonus, 0 if both are dead."""
+    s0, s1 = side_scores(utype, hp, totals, use_ltd)
     d0 = player_dead(utype, hp, 0)
     d1 = player_dead(utype, hp, 1)
     if d0 and d1:
         return 0
-    bonus = 100000 if (d1 and not d0) else (-100000 if (d0 and not d1) else 0)
-    return score[0] - score[1] + bonus
+    v = s0 - s1 if p == 0 else s1 - s0
+    mine = d0 if p == 0 else d1
+    theirs = d1 if p == 0 else d0
+    if theirs and not mine:
+        v += 100000
+    elif mine and not theirs:
+        v -= 100000
+    return v
+
+
+@njit(cache=True)
+def ltd2_eval(utype, hp, ltd2_total):
+    """``evaluate(state, 0, "ltd2")``: LTD2 difference in float32 plus the +-100000 bonus."""
+    return evaluate(utype, hp, ltd2_total, False, 0)
 
 
 # ----------------------------------------------------------------------------- whole turns, games

@@ -30,7 +30,6 @@ from numba import njit, prange
 
 from hybridmarl.engine.native.kernels import (
     ATTACK_BASE,
-    DPF,
     INF,
     MOVE_BASE,
     PASS_ACTION,
@@ -39,10 +38,12 @@ from hybridmarl.engine.native.kernels import (
     _rng_base,
     apply_turn,
     choose_actions,
+    evaluate,
     make_workspace,
     njit_without_refcount,
     player_dead,
     prepare_turn,
+    side_scores,
 )
 
 NUM_DYNAMIC = 9  # x, y, px, py, t_act, last, hp, t_move, t_attack
@@ -85,54 +86,9 @@ def _pack(st, sc, prev, out):
 
 
 @njit(cache=True, inline="always")
-def _scores(utype, hp, totals, use_ltd):
-    """LTD2 (or LTD) of both sides: int(1000 * sum / total), the sum in float32 in slot order;
-    0 for a side with no living unit or a zero total (``rules.ltd2`` / ``rules.ltd``)."""
-    s0 = 0
-    s1 = 0
-    for p in range(2):
-        acc = np.float32(0.0)
-        any_alive = False
-        for s in range(hp.shape[1]):
-            if hp[p, s] > 0:
-                any_alive = True
-                if use_ltd:
-                    acc = acc + np.float32(hp[p, s]) * DPF[utype[p, s]]
-                else:
-                    acc = acc + np.sqrt(np.float32(hp[p, s])) * DPF[utype[p, s]]
-        total = totals[p]
-        v = 0
-        if any_alive and total > 0:
-            v = int(np.float32(1000.0) * acc / total)
-        if p == 0:
-            s0 = v
-        else:
-            s1 = v
-    return s0, s1
-
-
-@njit(cache=True, inline="always")
 def _terminal(utype, hp, stale, stalemate_limit):
     """``rules.is_terminal``: a side dead or more than ``stalemate_limit`` turns without HP change."""
     return player_dead(utype, hp, 0) or player_dead(utype, hp, 1) or stale > stalemate_limit
-
-
-@njit(cache=True, inline="always")
-def _eval(utype, hp, totals, use_ltd, p):
-    """``rules.evaluate(state, p)``: score difference plus the +-100000 bonus, 0 if both are dead."""
-    s0, s1 = _scores(utype, hp, totals, use_ltd)
-    d0 = player_dead(utype, hp, 0)
-    d1 = player_dead(utype, hp, 1)
-    if d0 and d1:
-        return 0
-    v = s0 - s1 if p == 0 else s1 - s0
-    mine = d0 if p == 0 else d1
-    theirs = d1 if p == 0 else d0
-    if theirs and not mine:
-        v += 100000
-    elif mine and not theirs:
-        v -= 100000
-    return v
 
 
 @njit(cache=True, inline="always")
@@ -228,8 +184,8 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
             for s in range(n):
                 scripts_out[k, i, p, s] = ws[4][p, s]
     terminal_out[k] = _terminal(utype, hp, stale[0], stalemate_limit)
-    ev_out[k, 0] = _eval(utype, hp, ltd2_total, False, 0)
-    ev_out[k, 1] = _eval(utype, hp, ltd2_total, False, 1)
+    ev_out[k, 0] = evaluate(utype, hp, ltd2_total, False, 0)
+    ev_out[k, 1] = evaluate(utype, hp, ltd2_total, False, 1)
     # Transposition-table key material: living units in unit order (cx, cy, t_attack - time,
     # t_move - time, hp, type); dead units are rows of zeros after them.
     t = time[0]
@@ -279,7 +235,7 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
         _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
         played += 1
     totals = ltd_total if use_ltd else ltd2_total
-    s0, s1 = _scores(utype, hp, totals, use_ltd)
+    s0, s1 = side_scores(utype, hp, totals, use_ltd)
     diff = s0 - s1 if player[k] == 0 else s1 - s0
     if d0 and d1:
         value_out[k] = 0
@@ -344,7 +300,7 @@ def _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, sc
                 ws[4][p, s] = per_script[assign[k, p, s], s] if acting[p, s] else PASS_ACTION
         _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
         played += 1
-    return _eval(utype, hp, ltd2_total, False, player[k])
+    return evaluate(utype, hp, ltd2_total, False, player[k])
 
 
 @njit(cache=True, parallel=True)
