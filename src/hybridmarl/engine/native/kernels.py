@@ -648,12 +648,6 @@ def evaluate(utype, hp, totals, use_ltd, p):
     return v
 
 
-@njit(cache=True)
-def ltd2_eval(utype, hp, ltd2_total):
-    """``evaluate(state, 0, "ltd2")``: LTD2 difference in float32 plus the +-100000 bonus."""
-    return evaluate(utype, hp, ltd2_total, False, 0)
-
-
 # ----------------------------------------------------------------------------- whole turns, games
 
 
@@ -709,7 +703,7 @@ def play_games(fields, time, turn, stale, prev_hp_sum, ltd2_total, walkable, scr
                 overkill_pass, stalemate_limit, max_turns, turn_budget, seed, game_ids[g], ws,
             )
             winner_out[g] = winner(utype[g], hp[g])
-            ltd2_out[g] = ltd2_eval(utype[g], hp[g], ltd2_total[g])
+            ltd2_out[g] = evaluate(utype[g], hp[g], ltd2_total[g], False, 0)
 
 
 @njit(cache=True)
