@@ -82,7 +82,7 @@ def test_env_step_equals_combat_step(midgame):
         reward, done = env_step(
             g, *f, batch["time"], batch["turn"], batch["stale"], batch["prev_hp_sum"], walk, acts[g].astype(np.int64),
             env.num_agents, env.num_actions, SCRIPT_CODES[env.enemy_name], rules.overkill == "pass", rules.stalemate_limit,
-            rules.max_turns, batch["init_hp0"][g], 0, g, make_workspace(n), np.zeros(n, np.int64), np.zeros(n, np.int64),
+            rules.max_turns, batch["init_hp0"][g], 0, g, make_workspace(n), np.zeros(n, np.int64), np.zeros(n, np.int64), False,
         )
         assert reward == float(r[g]) and done == bool(d[g]), g
     names = ("utype", "uid", "x", "y", "px", "py", "t_act", "last", "hp", "t_move", "t_attack")
@@ -173,3 +173,38 @@ def test_script_evaluation_same_on_both_engines():
     got = E.run_scripted_episodes_native(task, "attack-closest", key, 24)
     for name in ("won", "lost", "draw", "terminal_hp_reward", "return", "steps"):
         np.testing.assert_array_equal(got[name], ref[name], err_msg=name)
+
+
+
+
+def test_each_env_step_kernel_is_compiled_once(midgame):
+    """Compiled callers pass the game index and the flags as runtime values, never as literals:
+    Numba compiles a function again for every literal argument value (``Literal[int](0)``) and
+    for a ``prange`` loop's unsigned index, and each such copy is the whole turn loop again.
+
+    A kernel loaded from Numba's disk cache does not resolve its callees, so each caller is
+    compiled again here, uncached, for the types it was called with: that makes Numba resolve
+    (compile, or load) each callee for exactly the argument types the caller passes."""
+    import numba
+
+    from hybridmarl.envs.combat import native as CN
+
+    cfg, task, states, _, cand = midgame
+    b, na, n = cand.shape
+    sim = BN.NativeBRD(task, gamma=cfg.gamma, iterations=7, lookahead=2, continuation="attack-closest")
+    sim.simulate(state_arrays(jax.device_get(states)), np.repeat(np.arange(b), na), cand.reshape(b * na, n))
+
+    def callees_of(caller, sig, parallel=False):
+        numba.njit(sig, parallel=parallel, _nrt=parallel)(caller.py_func)
+
+    def one(callee):
+        assert len(callee.signatures) == 1, (callee.py_func.__name__, callee.signatures)
+        return callee.signatures[0]
+
+    callees_of(BN.simulate_candidates, one(BN.simulate_candidates), parallel=True)
+    callees_of(BN._simulate_chunk, one(BN._simulate_chunk))  # the first env step, then the look-ahead's
+    step_sig = one(CN.env_step)
+    one(CN.script_env_actions)
+    callees_of(CN.env_step, step_sig)
+    callees_of(CN.env_step_keeping_last_actions, (*step_sig, numba.types.int32[:, ::1]))
+    one(CN._env_step)

@@ -58,7 +58,8 @@ def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkab
     values = np.empty((n_chunks, 2, n), np.float32)
     for c in prange(n_chunks):
         # A plain (serial) function per chunk: Numba compiles it as such, not as a parfor body.
-        _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
+        # np.int64(c): the parfor's index is unsigned, and another argument type is another compile.
+        _simulate_chunk(np.int64(c), n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
                         num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
                         stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out,
                         game[c], clock[c], make_workspace(n), ranks[c], acts[c], values[c])
@@ -82,6 +83,7 @@ def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp
     s_time, s_turn, s_stale = clock[0:1], clock[1:2], clock[2:3]
     s_prev = clock[3:5].reshape((1, 2))
     rank_slot, rank_of = ranks[0], ranks[1]
+    g0 = np.int64(0)  # the scratch state's index
     for i in range(c, m, n_chunks):
         g = games[i]
         for f in range(11):  # a plain loop: a slice assignment may allocate a temporary
@@ -96,21 +98,21 @@ def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp
         s_prev[0, 1] = prev_hp_sum[g, 1]
         for u in range(num_agents):
             acts[u] = joint[i, u]
-        r, ended = env_step(0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
+        r, ended = env_step(g0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
                             s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts, num_agents,
                             num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
-                            init_hp0[g], seed, g, ws, rank_slot, rank_of)
+                            init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(False))
         ret = r
         disc = gamma
         k = 1
         while k < steps and not ended:
-            script_env_actions(0, s_utype, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
+            script_env_actions(g0, s_utype, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
                                s_tatk, s_time, s_turn, s_stale, walkable, continuation, num_agents,
                                stalemate_limit, max_turns, seed, g, ws, rank_slot, rank_of, acts)
-            r, ended = env_step(0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp,
+            r, ended = env_step(g0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp,
                                 s_tmove, s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts,
                                 num_agents, num_actions, enemy, overkill_pass, stalemate_limit,
-                                max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
+                                max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(True))
             ret = ret + disc * r
             disc = disc * gamma
             k += 1

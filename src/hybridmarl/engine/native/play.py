@@ -92,8 +92,8 @@ def _run_kernel(states: NativeStates, walkable, s0, s1, overkill_pass, stalemate
     if threads is not None:
         numba.set_num_threads(int(threads))
     chunks = max(1, min(b, numba.get_num_threads() * 16))
-    s0 = np.ascontiguousarray(np.broadcast_to(np.asarray(s0, np.int64), (b,)))
-    s1 = np.ascontiguousarray(np.broadcast_to(np.asarray(s1, np.int64), (b,)))
+    s0 = np.array(np.broadcast_to(np.asarray(s0, np.int64), (b,)))
+    s1 = np.array(np.broadcast_to(np.asarray(s1, np.int64), (b,)))
     K.play_games(states.unit_fields(), states.time, states.turn, states.stale, states.prev_hp_sum,
                  states.ltd2_total, walkable, s0, s1, overkill_pass, stalemate_limit, max_turns,
                  turn_budget, seed, game_ids, chunks, winner, ltd2, n_actions)

@@ -226,8 +226,8 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
     while played < cap and not _terminal(utype, hp, stale[0], stalemate_limit):
         _prepare(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
         rng = _rng_base(seed, k + 7919 * (played + 1), turn[0])
-        _choose(playout0, 0, utype, x, y, hp, rng, ws)
-        _choose(playout1, 1, utype, x, y, hp, rng ^ salt1, ws)
+        _choose(playout0, np.int64(0), utype, x, y, hp, rng, ws)
+        _choose(playout1, np.int64(1), utype, x, y, hp, rng ^ salt1, ws)
         pl = player[k]
         for s in range(n):
             if ws[6][pl, s] and _is_move(ws[4][pl, s]):

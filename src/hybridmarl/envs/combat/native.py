@@ -145,7 +145,7 @@ def _hp_diff(hp):
 @njit_without_refcount
 def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
              prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
-             stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared=False):
+             stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared):
     """``Combat.step`` of game ``g`` (unit-field views ``[2, U]``) with env ``actions``
     ``[num_agents]``, in place. Returns ``(reward, done)``; a finished game is left as it is.
 
@@ -158,11 +158,15 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
 
     Compiled without Numba's reference counting (``_nrt=False``), as are the other kernels here
     that allocate nothing: with it, the atomic increments and decrements on every array passed
-    down the turn loop took about 80 % of Alg. 1's simulation time."""
+    down the turn loop took about 80 % of Alg. 1's simulation time.
+
+    Compiled callers pass ``g`` and the flags as runtime values (``np.int64(0)``,
+    ``np.bool_(True)``), never as literals: Numba compiles the whole turn loop again for every
+    literal argument value it sees (about 25 s of compilation each)."""
     return _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
                      prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
                      stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot,
-                     prepared, last, False)
+                     prepared, last, np.bool_(False))
 
 
 @njit_without_refcount
@@ -176,7 +180,7 @@ def env_step_keeping_last_actions(g, utype, uid, x, y, px, py, t_act, last, hp, 
     return _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
                      prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
                      stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot,
-                     prepared, last_actions, True)
+                     prepared, last_actions, np.bool_(True))
 
 
 @njit_without_refcount
@@ -366,7 +370,7 @@ def play_scripted_episodes(fields, time, turn, stale, prev_hp_sum, init_hp0, wal
         ws = make_workspace(n)
         ranks = np.empty((2, n), np.int64)
         acts = np.empty(num_agents, np.int64)
-        _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script,
+        _play_scripted_chunk(np.int64(c), n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script,
                              enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
                              won, lost, steps, returns, terminal, ws, ranks, acts)
 
@@ -391,7 +395,7 @@ def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, in
             r, done = env_step(g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g],
                                t_move[g], t_attack[g], time, turn, stale, prev_hp_sum, walkable, acts,
                                num_agents, num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
-                               init_hp0[g], seed, g, ws, rank_slot, rank_of, True)
+                               init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(True))
             ret = ret + r
             count += 1
         w = winner(utype[g], hp[g])
@@ -418,7 +422,7 @@ def step_scripted_games(fields, time, turn, stale, prev_hp_sum, last_actions, st
     ranks = np.empty((n_chunks, 2, n), np.int64)
     acts = np.empty((n_chunks, num_agents), np.int64)
     for c in prange(n_chunks):
-        _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
+        _step_scripted_chunk(np.int64(c), n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
                              walkable, script, enemy, num_agents, num_actions, overkill_pass, stalemate_limit,
                              max_turns, seed, actions, reward, done, won, lost, terminal, make_workspace(n), ranks[c],
                              acts[c])
@@ -445,7 +449,7 @@ def _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, la
             r, d = env_step_keeping_last_actions(
                 g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g], t_attack[g],
                 time, turn, stale, prev_hp_sum, walkable, acts, num_agents, num_actions, enemy, overkill_pass,
-                stalemate_limit, max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, True, last_actions[g],
+                stalemate_limit, max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(True), last_actions[g],
             )
             steps[g] += 1
             for u in range(num_agents):
