@@ -175,8 +175,6 @@ def test_script_evaluation_same_on_both_engines():
         np.testing.assert_array_equal(got[name], ref[name], err_msg=name)
 
 
-
-
 def test_each_env_step_kernel_is_compiled_once(midgame):
     """Compiled callers pass the game index and the flags as runtime values, never as literals:
     Numba compiles a function again for every literal argument value (``Literal[int](0)``) and
