@@ -112,6 +112,7 @@ FIELD_RULES: dict[str, Rule] = {
     },
     "seed": SEED,
     "actor_average_from": optional(COUNT_OR_ZERO),
+    "actor_lr_decay_from": optional(COUNT_OR_ZERO),
     "gamma": DISCOUNT,
     **{name: PROBABILITY for name in ("eps_start", "eps_end", "per_alpha", "per_beta0")},
     "p_arrive": optional(PROBABILITY),

@@ -150,6 +150,14 @@ def test_native_chunk_is_deterministic():
     out = runs[0][2]
     assert out["reward"].shape == (cfg.chunk_steps, cfg.num_envs)
     assert np.all(np.isfinite(out["aux"]["actor_loss"]))
+    # The actor's learning-rate factor (actor_lr_decay_from): 1 is the unscaled step exactly,
+    # 0 leaves the parameters where they were (batch-norm statistics and Adam's moments move).
+    for a, b in zip(jax.tree.leaves(learner.train_chunk(pool, actor, _vars(critic), None, np.float32(1.0))), jax.tree.leaves(runs[0]), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    frozen = learner.train_chunk(pool, actor, _vars(critic), None, np.float32(0.0))[1]
+    for a, b in zip(jax.tree.leaves(frozen.params), jax.tree.leaves(actor.params), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(frozen.params), jax.tree.leaves(runs[0][1].params), strict=True))
 
 
 def test_native_engine_refused_where_it_does_not_apply():

@@ -4,9 +4,10 @@ trajectory critic data of 'pretrain_trajectories'."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from hybridmarl.algos.hybrid.config import PRESETS
-from hybridmarl.algos.hybrid.train import one_state_per_episode
+from hybridmarl.algos.hybrid.train import actor_lr_scale, one_state_per_episode
 
 
 def test_paper_presets_are_the_papers_method():
@@ -34,3 +35,12 @@ def test_one_state_per_episode():
     np.testing.assert_array_equal(ret, returns[picked["x"] // 10])  # each row keeps its own return
     seen = {int(i) for _ in range(50) for i in one_state_per_episode(states, returns, np.random.default_rng(_))[0]["x"][:1] // 10}
     assert seen == {0, 1, 2}  # uniform over the first episode's three states
+
+
+def test_actor_lr_scale_falls_linearly_to_zero():
+    cfg = PRESETS["quick"]("combat")
+    assert cfg.actor_lr_decay_from is None and actor_lr_scale(cfg, 2_000) is None  # off by default
+    cfg = cfg.replace(actor_lr_decay_from=1_500)  # total_episodes 3,000
+    got = [actor_lr_scale(cfg, e) for e in (0, 1_500, 1_800, 2_250, 2_700, 3_000, 3_128)]
+    assert got == pytest.approx([1.0, 1.0, 0.8, 0.5, 0.2, 0.0, 0.0], abs=1e-12)
+    assert actor_lr_scale(cfg.replace(actor_lr_decay_from=3_000), 3_010) == 0.0  # E = total: no division by 0

@@ -349,6 +349,7 @@ def test_exact_resume(tj_dataset, tmp_path, average):
         actor_target="best" if average else "advantage",
         eval_every=0 if average else 3,  # periodic evaluation and the best policy resume too
         actor_average_from=2 if average else None,  # and so does the actor's weight average
+        actor_lr_decay_from=3 if average else None,  # and the actor's learning-rate schedule
     )
     res = train(base.replace(total_episodes=8, run_dir=str(tmp_path / "straight")))
     assert isinstance(res, TrainResult) and res.run_dir == tmp_path / "straight"

@@ -116,3 +116,23 @@ def test_check_finite():
         check_finite("critic loss", float("nan"), "episode 7")
     with pytest.raises(TrainingDiverged, match="actor parameters"):
         check_finite("actor parameters", {"w": jnp.asarray([1.0, jnp.inf])}, "episode 3")
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5, 0.0])
+def test_sgd_step_lr_scale_by_hand(scale):
+    """lr_scale multiplies the step: SGD at 0.1 on L = |w|^2 / 2 (gradient w) moves w by
+    -0.1 w scale; Adam's first step is -lr sign(g) (up to its epsilon), times scale."""
+    import optax
+
+    from hybridmarl.training.networks import NetState, sgd_step
+
+    w = jnp.array([1.0, -2.0])
+
+    def loss_fn(params, batch_stats):
+        return 0.5 * jnp.sum(params["w"] ** 2), (batch_stats, None)
+
+    for tx, want in ((optax.sgd(0.1), [1.0 - 0.1 * scale, -2.0 + 0.2 * scale]), (optax.adam(0.1), [1.0 - 0.1 * scale, -2.0 + 0.1 * scale])):
+        net = NetState(params={"w": w}, batch_stats={}, opt_state=tx.init({"w": w}), step=jnp.zeros((), jnp.int32))
+        out, loss, _ = sgd_step(net, tx, loss_fn, jnp.float32(scale))
+        np.testing.assert_allclose(np.asarray(out.params["w"]), want, rtol=1e-6)
+        assert float(loss) == 2.5 and int(out.step) == 1

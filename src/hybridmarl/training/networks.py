@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.typing import ArrayLike
 
 ACTOR_HIDDEN = (512, 256, 256)  # paper Section 5.1
 CRITIC_HIDDEN = (256, 128, 128)  # paper Section 5.1
@@ -92,11 +93,16 @@ def init_net(module: MLP, key: jax.Array, in_dim: int, tx: optax.GradientTransfo
     )
 
 
-def sgd_step(net: NetState, tx: optax.GradientTransformation, loss_fn: Callable[[Any, Any], tuple[jax.Array, tuple[Any, Any]]]) -> tuple[NetState, jax.Array, Any]:
+def sgd_step(net: NetState, tx: optax.GradientTransformation, loss_fn: Callable[[Any, Any], tuple[jax.Array, tuple[Any, Any]]],
+             lr_scale: ArrayLike | None = None) -> tuple[NetState, jax.Array, Any]:
     """One optimiser step of ``net``: ``loss_fn(params, batch_stats) -> (loss, (new_batch_stats,
-    extra))``; returns ``(net', loss, extra)`` (the one place every learner updates a network)."""
+    extra))``; returns ``(net', loss, extra)`` (the one place every learner updates a network).
+    ``lr_scale`` multiplies the step: for SGD and Adam that is the learning rate times
+    ``lr_scale``, with the optimiser's state unchanged in shape (a schedule set from the host)."""
     (loss, (bs, extra)), grads = jax.value_and_grad(loss_fn, has_aux=True)(net.params, net.batch_stats)
     updates, opt = tx.update(grads, net.opt_state, net.params)
+    if lr_scale is not None:
+        updates = jax.tree.map(lambda u: u * lr_scale, updates)
     net = net.replace(params=optax.apply_updates(net.params, updates), batch_stats=bs, opt_state=opt, step=net.step + 1)
     return net, loss, extra
 

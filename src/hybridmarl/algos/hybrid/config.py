@@ -126,7 +126,8 @@ class BRDOptions(Options):
 class ActorOptions(Options):
     """The actor update of Alg. 2 (Eq. 8) and the run's policy."""
 
-    RUN_ONLY = frozenset({"actor_init", "actor_average_from"})
+    # actor_lr_decay_from is a host-side schedule: the compiled step takes the scale as an argument.
+    RUN_ONLY = frozenset({"actor_init", "actor_average_from", "actor_lr_decay_from"})
 
     actor_init: Literal["random", "clone"] = "random"
     """Initial actor parameters: 'random' (the paper states none), or 'clone': start the actor
@@ -152,6 +153,12 @@ class ActorOptions(Options):
     plays the live actor. Why: evaluated checkpoints of one m5v5 run 50 episodes apart swing
     between W 0.20 and 0.70, and the average of the second half's checkpoints is as good as the
     best of them (docs/results.md)."""
+    actor_lr_decay_from: int | None = None
+    """None: the actor's learning rate stays actor_lr (Alg. 2). E (an extension): from training
+    episode E on, the actor's steps are scaled by a factor that falls linearly from 1 at episode
+    E to 0 at total_episodes (set at each chunk from the episodes played so far), so that the
+    live actor settles instead of swinging at the end of training. A resume that changes
+    total_episodes changes the schedule from there. docs/results.md#a-decaying-actor-learning-rate."""
 
 
 @dataclass(frozen=True)

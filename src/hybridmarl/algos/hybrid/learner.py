@@ -29,6 +29,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike
 
 from hybridmarl.algos.hybrid.brd import best_response_dynamics, make_q_fn
 from hybridmarl.algos.hybrid.config import HybridConfig
@@ -133,7 +134,8 @@ class Learner:
 
     # Eq. 8 (or the cross-entropy toward ã_g): 'actor_steps' SGD steps on the rows of weight 1
     # (batch norm's statistics over those rows only); no update when no row has weight.
-    def _update_actor(self, actor: nets.NetState, x: jax.Array, legal: jax.Array, best: jax.Array, adv: jax.Array, w: jax.Array, *, actor_steps: int, target: str):
+    def _update_actor(self, actor: nets.NetState, x: jax.Array, legal: jax.Array, best: jax.Array, adv: jax.Array, w: jax.Array,
+                      lr_scale: ArrayLike | None, *, actor_steps: int, target: str):
         mod, tx = self.actor_mod, self.actor_tx
         any_w = jnp.any(w)
         bn_mask = jnp.where(any_w, w, jnp.ones_like(w))
@@ -148,7 +150,7 @@ class Learner:
 
         def sgd_step(_, c):
             net, _ = c
-            net, loss, _ = nets.sgd_step(net, tx, loss_fn)
+            net, loss, _ = nets.sgd_step(net, tx, loss_fn, lr_scale)
             return net, loss
 
         new, loss = jax.lax.fori_loop(0, actor_steps, sgd_step, (actor, jnp.zeros((), jnp.float32)))
@@ -175,7 +177,7 @@ class Learner:
         value_fn = self.value_fn(critic_vars) if lookahead < TO_THE_END else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
         return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, policy_fn=policy, batch_step_fn=batch_step_fn)
 
-    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, work_batch: int):
+    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, lr_scale: ArrayLike | None = None, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, work_batch: int):
         task, b, mod = self.task, self.b, self.actor_mod
 
         def act(actor, key, states, obs, legal):
@@ -192,7 +194,7 @@ class Learner:
             flat_w = weight.reshape(-1)
             actor, loss = self._update_actor(
                 actor, obs.reshape(b * n, -1), legal.reshape(b * n, na), res.actions.reshape(b * n), adv.reshape(b * n, na),
-                flat_w, actor_steps=actor_steps, target=target,
+                flat_w, lr_scale, actor_steps=actor_steps, target=target,
             )
             # Perform the updated actor's legal argmax (Alg. 2).
             actions = nets.actor_actions(mod, actor, obs, legal)
@@ -217,7 +219,7 @@ class Learner:
 
     def _native_post_fn(self, pool: Pool, actor: nets.NetState, key_data: jax.Array, k_step: jax.Array, k_reset: jax.Array,
                         legal: jax.Array, a_actor: jax.Array, brd: dict[str, jax.Array], rows: jax.Array, valid: jax.Array,
-                        *, actor_steps: int, target: str):
+                        lr_scale: ArrayLike | None, *, actor_steps: int, target: str):
         """Eq. 7, the actor's update (Eq. 8, or cross-entropy toward ã_g) on the gathered rows of
         the agents with a choice, the updated actor's legal argmax, the env step and resets."""
         task, mod = self.task, self.actor_mod
@@ -227,7 +229,7 @@ class Learner:
         weight = brd["q_valid"] & (jnp.sum(legal, -1) >= 2)
         actor, loss = self._update_actor(
             actor, obs.reshape(b * n, -1)[rows], legal.reshape(b * n, na)[rows], brd["actions"].reshape(b * n)[rows],
-            adv.reshape(b * n, na)[rows], valid, actor_steps=actor_steps, target=target,
+            adv.reshape(b * n, na)[rows], valid, lr_scale, actor_steps=actor_steps, target=target,
         )
         actions = nets.actor_actions(mod, actor, obs, legal)
         # The env step and the resets of 'pool_steps'.
@@ -239,7 +241,7 @@ class Learner:
         out = {"state": pool.states, "reward": r, "done": d, "stats": stats, "aux": aux}
         return pool2, actor, out
 
-    def _train_chunk_native(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any):
+    def _train_chunk_native(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, lr_scale: ArrayLike | None = None):
         """'train_chunk' on the native engine: the same steps, one host call of Alg. 1 each."""
         from hybridmarl.algos.hybrid.brd_native import NativeMLP, bucket
 
@@ -264,7 +266,7 @@ class Learner:
                 "q_final": res.q_final, "changes": res.changes, "sweeps": np.float32(res.sweeps),
                 "evaluated": np.float32(res.evaluated), "simulated": np.float32(res.simulated),
             }
-            pool, actor, out = self._native_post(pool, actor, key_data, k_step, k_reset, legal, a_actor, brd, rows, valid)
+            pool, actor, out = self._native_post(pool, actor, key_data, k_step, k_reset, legal, a_actor, brd, rows, valid, lr_scale)
             outs.append(jax.device_get(out))
             t3 = time.perf_counter()
             for k, v in (("host_in", t1 - t0), ("brd", t2 - t1), ("brd_simulation", res.seconds_simulation),

@@ -87,6 +87,18 @@ class HybridState(RunState):
             self.average = unflatten_named(_vars(self.actor), subtree(arrays, AVERAGE_PREFIX))
 
 
+def actor_lr_scale(cfg: HybridConfig, episodes: int) -> float | None:
+    """The factor on the actor's learning rate for the chunk that starts after ``episodes``
+    training episodes (``actor_lr_decay_from``): None without the schedule, else 1 until
+    episode E, then linear to 0 at ``total_episodes``."""
+    start = cfg.actor_lr_decay_from
+    if start is None:
+        return None
+    if episodes <= start:
+        return 1.0
+    return max(0.0, 1.0 - (episodes - start) / max(cfg.total_episodes - start, 1))
+
+
 @jax.jit
 def _running_mean(avg: Any, new: Any, count: jax.Array) -> Any:
     return jax.tree.map(lambda a, x: a + (x - a) / count.astype(a.dtype), avg, new)
@@ -188,7 +200,10 @@ def train(cfg: HybridConfig) -> TrainResult:
         with run.loop():
             while run.running():
                 # B games x chunk_steps steps of Alg. 1, Eq. 7, Eq. 8 and the env, compiled.
-                st.pool, st.actor, out = learner.train_chunk(st.pool, st.actor, _vars(st.critic), _vars(st.clone))
+                scale = actor_lr_scale(cfg, st.episodes)
+                st.pool, st.actor, out = learner.train_chunk(
+                    st.pool, st.actor, _vars(st.critic), _vars(st.clone), None if scale is None else np.float32(scale),
+                )
                 states, returns, stats = st.assembler.add(out)
                 st.buffer.add(states, returns)
                 run.count(stats, cfg.chunk_steps * cfg.num_envs)
@@ -211,7 +226,8 @@ def train(cfg: HybridConfig) -> TrainResult:
                     st.average = cur if st.average_count == 1 else _running_mean(st.average, cur, jnp.asarray(st.average_count, jnp.float32))
                 critic_status = "-" if np.isnan(st.critic_loss) else f"{st.critic_loss:.4f}"  # '-': not fitted yet (w/o D)
                 run.log_chunk(
-                    {"iteration": st.iterations, **aux, "critic_loss": st.critic_loss, "critic_updates": st.critic_updates},
+                    {"iteration": st.iterations, **aux, "critic_loss": st.critic_loss, "critic_updates": st.critic_updates,
+                     **({} if scale is None else {"actor_lr_scale": scale})},
                     f"critic {critic_status}", per_second={"env_steps_per_s": cfg.chunk_steps * cfg.num_envs},
                 )
         if run.time_limited:
