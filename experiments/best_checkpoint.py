@@ -21,9 +21,7 @@ reused on the next call, so the script resumes. Prints one JSON object.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
-import time
 from pathlib import Path
 from typing import Any
 
@@ -36,10 +34,8 @@ def evaluate_best(task_dir: Path) -> dict[str, Any] | None:
     """The protocol evaluation of ``task_dir``'s best checkpoint (cached), or None if the run
     keeps none."""
     from hybridmarl.io import write_json_atomic
-    from hybridmarl.reproduce.worker import evaluate_policy
-    from hybridmarl.training import evaluate as E
+    from hybridmarl.reproduce.worker import evaluate_run
     from hybridmarl.training.checkpoint import BEST
-    from hybridmarl.training.task import make_task
 
     out = task_dir / OUT_FILE
     if out.is_file():
@@ -48,13 +44,10 @@ def evaluate_best(task_dir: Path) -> dict[str, Any] | None:
     if not (run_dir / "checkpoints" / BEST).exists():
         return None
     c = json.loads((task_dir / "task.json").read_text())["config"]
-    bundle = E.load_policy(run_dir, BEST)
-    spec = dataclasses.replace(bundle.spec, enemy=c["enemy"]) if c["env"] == "combat" else bundle.spec
-    wall0, cpu0 = time.time(), time.process_time()
-    summary, per_episode = evaluate_policy(make_task(spec), bundle.module, bundle.variables, None, c["n"], c["eval_seed"])
+    ev = evaluate_run(run_dir, c, BEST)
     result = {
-        "summary": summary, "per_episode": per_episode, "episodes": bundle.meta.get("episodes"),
-        "selection": bundle.meta.get("selection"), "wall_s": time.time() - wall0, "cpu_s": time.process_time() - cpu0,
+        "summary": ev["summary"], "per_episode": ev["per_episode"], "episodes": ev["meta"].get("episodes"),
+        "selection": ev["meta"].get("selection"), "wall_s": ev["wall_s"], "cpu_s": ev["cpu_s"],
     }
     write_json_atomic(out, result)
     return result

@@ -19,10 +19,8 @@ task's evaluation settings) and reused on the next call. Prints one JSON object.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -31,12 +29,10 @@ import numpy as np
 OUT_FILE = "paired_vs_task.json"
 
 
-def evaluate_run(run_dir: Path, c: dict[str, Any], checkpoint: str | None) -> dict[str, Any]:
+def evaluate_cached(run_dir: Path, c: dict[str, Any], checkpoint: str | None) -> dict[str, Any]:
     """The protocol evaluation of the run's policy on the task's start states (cached)."""
     from hybridmarl.io import write_json_atomic
-    from hybridmarl.reproduce.worker import evaluate_policy
-    from hybridmarl.training import evaluate as E
-    from hybridmarl.training.task import make_task
+    from hybridmarl.reproduce.worker import evaluate_run
 
     ident = {"eval_seed": c["eval_seed"], "n": c["n"], "enemy": c.get("enemy"), "checkpoint": checkpoint}
     out = run_dir / OUT_FILE
@@ -44,14 +40,8 @@ def evaluate_run(run_dir: Path, c: dict[str, Any], checkpoint: str | None) -> di
         cached = json.loads(out.read_text())
         if cached.get("ident") == ident:
             return cached
-    bundle = E.load_policy(run_dir, checkpoint)
-    spec = dataclasses.replace(bundle.spec, enemy=c["enemy"]) if c["env"] == "combat" else bundle.spec
-    wall0, cpu0 = time.time(), time.process_time()
-    summary, per_episode = evaluate_policy(make_task(spec), bundle.module, bundle.variables, None, c["n"], c["eval_seed"])
-    result = {
-        "ident": ident, "summary": summary, "per_episode": per_episode, "weights": bundle.weights,
-        "wall_s": time.time() - wall0, "cpu_s": time.process_time() - cpu0,
-    }
+    ev = evaluate_run(run_dir, c, checkpoint)
+    result = {"ident": ident, **{k: ev[k] for k in ("summary", "per_episode", "weights", "wall_s", "cpu_s")}}
     write_json_atomic(out, result)
     return result
 
@@ -75,7 +65,7 @@ def main() -> int:
         print(f"{args.task}: a Traffic Junction task; this compares combat battles", file=sys.stderr)
         return 2
     task = json.loads(result_file.read_text())
-    run = evaluate_run(args.run_dir, c, args.checkpoint)
+    run = evaluate_cached(args.run_dir, c, args.checkpoint)
     won = paired_wins(np.asarray(run["per_episode"]["won"]) > 0, np.asarray(task["per_episode"]["won"]) > 0)
     r = paired_test(run["per_episode"]["terminal_hp_reward"], task["per_episode"]["terminal_hp_reward"])
     print(json.dumps({

@@ -140,7 +140,6 @@ def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, An
     import hybridmarl
     from hybridmarl import algos
     from hybridmarl.training.checkpoint import latest_checkpoint
-    from hybridmarl.training.task import make_task
 
     run_dir = task_dir / "run"
     mod = algos.algo_module(c["algo"])
@@ -160,16 +159,31 @@ def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, An
         print(f"{run_dir}: training finished earlier (eval.json), evaluating it", flush=True)
     else:
         hybridmarl.train(cfg)
-    policy = hybridmarl.load_policy(run_dir)
-    # The run's own task (scenario, setting), against the cross-validation enemy.
-    spec = dataclasses.replace(policy.spec, enemy=c["enemy"]) if env == "combat" else policy.spec
-    wall0, cpu0 = time.time(), time.process_time()
-    summary, per_episode = evaluate_policy(make_task(spec), policy.module, policy.variables, None, c["n"], c["eval_seed"])
+    ev = evaluate_run(run_dir, c)
     own = json.loads((run_dir / "eval.json").read_text())
     training = {k: own.get(k) for k in ("episodes", "wall_s", "cpu_s") if k in own}
-    training["weights"] = policy.weights
-    training["eval_wall_s"], training["eval_cpu_s"] = time.time() - wall0, time.process_time() - cpu0
-    return summary, per_episode, training
+    training["weights"] = ev["weights"]
+    training["eval_wall_s"], training["eval_cpu_s"] = ev["wall_s"], ev["cpu_s"]
+    return ev["summary"], ev["per_episode"], training
+
+
+def evaluate_run(run_dir: Path, c: dict[str, Any], checkpoint: str | int | None = None) -> dict[str, Any]:
+    """The protocol evaluation of a training run's policy (or of its ``checkpoint``) as the
+    task config ``c`` prescribes: the run's own task (scenario, setting) against the task's
+    cross-validation enemy, on the start states of its ``eval_seed``. Returns ``summary``,
+    ``per_episode``, ``weights``, ``meta`` (the checkpoint's) and the evaluation's ``wall_s``
+    and ``cpu_s``."""
+    from hybridmarl.training.evaluate import load_policy
+    from hybridmarl.training.task import make_task
+
+    policy = load_policy(run_dir, checkpoint)
+    spec = dataclasses.replace(policy.spec, enemy=c["enemy"]) if c["env"] == "combat" else policy.spec
+    wall0, cpu0 = time.time(), time.process_time()
+    summary, per_episode = evaluate_policy(make_task(spec), policy.module, policy.variables, None, c["n"], c["eval_seed"])
+    return {
+        "summary": summary, "per_episode": per_episode, "weights": policy.weights, "meta": policy.meta,
+        "wall_s": time.time() - wall0, "cpu_s": time.process_time() - cpu0,
+    }
 
 
 def run_task(task_dir: Path) -> dict[str, Any]:
