@@ -9,11 +9,16 @@ its outcomes with the task's kept per-battle outcomes:
   battles only one of them wins;
 - R of each and ΔR with a two-sided paired t-test.
 
+With ``--versus-run OTHER`` the run is paired with a second run instead, both played on the
+task's start states (for two runs made on the same machine, where the task was made on another
+CPU whose rounding led training elsewhere).
+
 The run's evaluation is written atomically to ``RUN/paired_vs_task.json`` (keyed by the
 task's evaluation settings) and reused on the next call. Prints one JSON object.
 
     python experiments/paired_vs_task.py --run-dir RUN \\
         --task results/reproduce-cpu-paper/tasks/Ours-m24v30-c-s1-448be9039177
+    python experiments/paired_vs_task.py --run-dir RUN --versus-run OTHER --task TASK
 """
 
 from __future__ import annotations
@@ -54,6 +59,8 @@ def main() -> int:
     ap.add_argument("--run-dir", required=True, type=Path, help="a finished run of `hybridmarl train`")
     ap.add_argument("--task", required=True, type=Path, help="a finished combat task folder of a grid (task.json, result.json)")
     ap.add_argument("--checkpoint", default=None, help="the run's checkpoint to play (default: the run's policy)")
+    ap.add_argument("--versus-run", default=None, type=Path,
+                    help="pair with this finished run (its final policy on the task's states) instead of the task")
     args = ap.parse_args()
     task_file, result_file = args.task / "task.json", args.task / "result.json"
     for path in (task_file, result_file):
@@ -64,12 +71,20 @@ def main() -> int:
     if c["env"] != "combat":
         print(f"{args.task}: a Traffic Junction task; this compares combat battles", file=sys.stderr)
         return 2
+    for path in (args.run_dir, args.versus_run):
+        if path is not None and not (path / "config.json").is_file():
+            print(f"{path}: not a run directory (no config.json)", file=sys.stderr)
+            return 2
     task = json.loads(result_file.read_text())
     run = evaluate_cached(args.run_dir, c, args.checkpoint)
+    if args.versus_run is not None:
+        task = evaluate_cached(args.versus_run, c, None)
     won = paired_wins(np.asarray(run["per_episode"]["won"]) > 0, np.asarray(task["per_episode"]["won"]) > 0)
     r = paired_test(run["per_episode"]["terminal_hp_reward"], task["per_episode"]["terminal_hp_reward"])
+    # "task" fields hold the --versus-run run's figures when one is given.
     print(json.dumps({
         "run": str(args.run_dir), "task": str(args.task), "weights": run["weights"],
+        "versus": str(args.versus_run or args.task),
         "W_run": won["W_a"], "W_task": won["W_b"], "dW": won["dW"], "dW_ci95": [won["dW_low"], won["dW_high"]],
         "only_run": won["only_a"], "only_task": won["only_b"], "p_mcnemar": won["p_mcnemar"],
         "R_run": run["summary"]["R"], "R_task": task["summary"]["R"], "dR": r["diff"], "p_R": r["p"],
