@@ -75,19 +75,19 @@ def main() -> int:
         if path is not None and not (path / "config.json").is_file():
             print(f"{path}: not a run directory (no config.json)", file=sys.stderr)
             return 2
-    task = json.loads(result_file.read_text())
     run = evaluate_cached(args.run_dir, c, args.checkpoint)
-    if args.versus_run is not None:
-        task = evaluate_cached(args.versus_run, c, None)
-    won = paired_wins(np.asarray(run["per_episode"]["won"]) > 0, np.asarray(task["per_episode"]["won"]) > 0)
-    r = paired_test(run["per_episode"]["terminal_hp_reward"], task["per_episode"]["terminal_hp_reward"])
-    # "task" fields hold the --versus-run run's figures when one is given.
+    # What the run is paired with: the task's kept battles, or the other run's on the same states.
+    # The output's "*_task" fields hold whichever it is.
+    other = (evaluate_cached(args.versus_run, c, None) if args.versus_run is not None
+             else json.loads(result_file.read_text()))
+    won = paired_wins(np.asarray(run["per_episode"]["won"]) > 0, np.asarray(other["per_episode"]["won"]) > 0)
+    r = paired_test(run["per_episode"]["terminal_hp_reward"], other["per_episode"]["terminal_hp_reward"])
     print(json.dumps({
         "run": str(args.run_dir), "task": str(args.task), "weights": run["weights"],
         "versus": str(args.versus_run or args.task),
         "W_run": won["W_a"], "W_task": won["W_b"], "dW": won["dW"], "dW_ci95": [won["dW_low"], won["dW_high"]],
         "only_run": won["only_a"], "only_task": won["only_b"], "p_mcnemar": won["p_mcnemar"],
-        "R_run": run["summary"]["R"], "R_task": task["summary"]["R"], "dR": r["diff"], "p_R": r["p"],
+        "R_run": run["summary"]["R"], "R_task": other["summary"]["R"], "dR": r["diff"], "p_R": r["p"],
         "eval_cpu_s": run["cpu_s"],
     }, indent=1))
     return 0
