@@ -39,7 +39,9 @@ from hybridmarl.training import networks as nets
 from hybridmarl.training.task import TaskSpec, make_task
 
 
-def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 0, work_batch: int = 0) -> dict:
+def bench(
+    scenario: str, batch: int, repeats: int, iterations: int, seed: int = 0, work_batch: int = 0
+) -> dict:
     task = make_task(TaskSpec(env="combat", scenario=scenario, enemy="attack-weakest"))
     critic = nets.critic_module()
     variables = critic.init(jax.random.key(seed), jnp.zeros((2, task.critic_dim)), train=False)
@@ -54,7 +56,9 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
     def call(keys, states):
         legal = jax.vmap(task.avail)(states)
         a0 = jax.vmap(demo)(keys, states)
-        return best_response_dynamics(q_fn, keys, states, a0, legal, iterations, work_batch=work_batch)
+        return best_response_dynamics(
+            q_fn, keys, states, a0, legal, iterations, work_batch=work_batch
+        )
 
     keys = jax.random.split(jax.random.key(seed + 1), batch)
     _, states = jax.vmap(task.reset)(keys)
@@ -69,7 +73,9 @@ def bench(scenario: str, batch: int, repeats: int, iterations: int, seed: int = 
     visits = int(res.visits)
     n, a = task.num_agents, task.num_actions
     best = min(times)
-    per_call = batch if work_batch <= 0 else min(work_batch, batch)  # candidates per call: per_call x A
+    per_call = (
+        batch if work_batch <= 0 else min(work_batch, batch)
+    )  # candidates per call: per_call x A
     sweeps_total = int(res.evaluated) / (batch * n)
     return {
         "scenario": scenario,
@@ -98,14 +104,22 @@ def main() -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--iterations", type=int, default=7)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--work-batch", type=int, default=0, help="Q calls inside Alg. 1 simulate this many x |A| legal candidates (0: all games x all actions)")
+    p.add_argument(
+        "--work-batch",
+        type=int,
+        default=0,
+        help="Q calls inside Alg. 1 simulate this many x |A| legal candidates (0: all games x all actions)",
+    )
     args = p.parse_args()
     out = {
         "batch": args.batch,
         "iterations": args.iterations,
         "work_batch": args.work_batch,
         "device": str(jax.devices()[0]),
-        "results": [bench(s, args.batch, args.repeats, args.iterations, args.seed, args.work_batch) for s in args.scenarios],
+        "results": [
+            bench(s, args.batch, args.repeats, args.iterations, args.seed, args.work_batch)
+            for s in args.scenarios
+        ],
     }
     print(json.dumps(out, indent=2))
 

@@ -34,7 +34,9 @@ from hybridmarl.training.task import make_task, unflatten_named
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description="Alg. 1's work schedule: one call's cost for several work batches.")
+    p = argparse.ArgumentParser(
+        description="Alg. 1's work schedule: one call's cost for several work batches."
+    )
     p.add_argument("--scenario", default="m5v5")
     p.add_argument("--preset", default="quick")
     p.add_argument("--checkpoint", help="a checkpoint directory whose actor and critic to load")
@@ -48,12 +50,21 @@ def main() -> None:
     learner = build_learner(task, cfg, cfg.demonstrator_name())
     b = cfg.num_envs
     actor = nets.init_net(learner.actor_mod, jax.random.key(0), task.obs_dim, learner.actor_tx)
-    critic = nets.init_net(learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx)
+    critic = nets.init_net(
+        learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx
+    )
     if args.checkpoint:
         arrays, _ = load_checkpoint(args.checkpoint)
         actor = unflatten_named(actor, subtree(arrays, "actor"))
         critic = unflatten_named(critic, subtree(arrays, "critic"))
-    q_fn = learner.brd_q_fn(actor, _vars(critic), None, gamma=cfg.gamma, lookahead=simulated_steps(cfg), continuation=continuation_policy(cfg))
+    q_fn = learner.brd_q_fn(
+        actor,
+        _vars(critic),
+        None,
+        gamma=cfg.gamma,
+        lookahead=simulated_steps(cfg),
+        continuation=continuation_policy(cfg),
+    )
 
     @jax.jit
     def play(states, key):
@@ -64,7 +75,14 @@ def main() -> None:
 
         return jax.lax.scan(body, states, jax.random.split(key, args.warm_steps))[0]
 
-    calls = {wb: jax.jit(lambda k, s, a, lg, wb=wb: best_response_dynamics(q_fn, k, s, a, lg, cfg.brd_iterations, wb)) for wb in args.work_batches}
+    calls = {
+        wb: jax.jit(
+            lambda k, s, a, lg, wb=wb: best_response_dynamics(
+                q_fn, k, s, a, lg, cfg.brd_iterations, wb
+            )
+        )
+        for wb in args.work_batches
+    }
     states = new_pool(task, jax.random.key(2), b).states
     sets = []
     for i in range(args.state_sets):
@@ -72,7 +90,10 @@ def main() -> None:
         obs, legal = jax.vmap(task.observe)(states), jax.vmap(task.avail)(states)
         keys = jax.random.split(jax.random.key(3 + i), b)
         a0 = nets.actor_actions(learner.actor_mod, actor, obs, legal)
-        row: dict = {"deciders_per_game": round(float(jnp.mean(jnp.sum(jnp.sum(legal, -1) >= 2, -1))), 3), "work_batch": {}}
+        row: dict = {
+            "deciders_per_game": round(float(jnp.mean(jnp.sum(jnp.sum(legal, -1) >= 2, -1))), 3),
+            "work_batch": {},
+        }
         ref = None
         for wb, fn in calls.items():
             t0 = time.perf_counter()
@@ -86,14 +107,26 @@ def main() -> None:
             ref = res if ref is None else ref
             both = (ref.q_valid & res.q_valid)[..., None]
             row["work_batch"][str(wb)] = {
-                "s_min": round(min(times), 4), "s_median": round(statistics.median(times), 4), "compile_s": round(compile_s, 1),
-                "calls": int(res.visits), "agent_visits": int(res.evaluated), "simulated": int(res.simulated), "sweeps": int(res.sweeps),
-                "same_actions": bool(jnp.all(res.actions == ref.actions)), "max_q_diff": float(jnp.max(jnp.where(both, jnp.abs(res.q - ref.q), 0.0))),
+                "s_min": round(min(times), 4),
+                "s_median": round(statistics.median(times), 4),
+                "compile_s": round(compile_s, 1),
+                "calls": int(res.visits),
+                "agent_visits": int(res.evaluated),
+                "simulated": int(res.simulated),
+                "sweeps": int(res.sweeps),
+                "same_actions": bool(jnp.all(res.actions == ref.actions)),
+                "max_q_diff": float(jnp.max(jnp.where(both, jnp.abs(res.q - ref.q), 0.0))),
             }
         sets.append(row)
     doc = {
-        "scenario": args.scenario, "preset": args.preset, "batch": b, "lookahead_steps": cfg.lookahead_steps,
-        "checkpoint": args.checkpoint, "device": str(jax.devices()[0]), "reference": str(args.work_batches[0]), "state_sets": sets,
+        "scenario": args.scenario,
+        "preset": args.preset,
+        "batch": b,
+        "lookahead_steps": cfg.lookahead_steps,
+        "checkpoint": args.checkpoint,
+        "device": str(jax.devices()[0]),
+        "reference": str(args.work_batches[0]),
+        "state_sets": sets,
     }
     print(json.dumps(doc, indent=2))
 

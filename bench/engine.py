@@ -65,14 +65,20 @@ def worker_native(args) -> dict:
             _, res = native.play(states, rules, args.p0, args.p1, threads=args.cores)
             times.append(time.perf_counter() - t)
         assert res is not None
-        rows.append({
-            "scenario": sc_name,
-            "games_per_run": n,
-            "games_per_s": _rates(n, times),
-            "mean_turns": round(float(res.turns.mean()), 2),
-            "p0_win_rate": round(float((res.winner == 0).mean()), 4),
-        })
-    return {"compile_or_cache_load_s": round(compile_s, 2), "threading_layer": native.threading_layer(), "results": rows}
+        rows.append(
+            {
+                "scenario": sc_name,
+                "games_per_run": n,
+                "games_per_s": _rates(n, times),
+                "mean_turns": round(float(res.turns.mean()), 2),
+                "p0_win_rate": round(float((res.winner == 0).mean()), 4),
+            }
+        )
+    return {
+        "compile_or_cache_load_s": round(compile_s, 2),
+        "threading_layer": native.threading_layer(),
+        "results": rows,
+    }
 
 
 def worker_jax(args) -> dict:
@@ -94,7 +100,13 @@ def worker_jax(args) -> dict:
         n = int(np.ceil(n / (pool * devices)) * pool * devices)
         stacked, _ = pad_states(named_scenario(sc_name).generate(n, args.seed))
         keys = jax.random.split(jax.random.PRNGKey(args.seed), n)
-        fn = game.pooled_player(canonical_name(args.p0), canonical_name(args.p1), game.rules_static(rules), pool, devices)
+        fn = game.pooled_player(
+            canonical_name(args.p0),
+            canonical_name(args.p1),
+            game.rules_static(rules),
+            pool,
+            devices,
+        )
         t = time.perf_counter()
         jax.block_until_ready(fn(keys, stacked, rules.walkable))  # compiles, and one run
         first = time.perf_counter() - t
@@ -108,15 +120,17 @@ def worker_jax(args) -> dict:
         assert res is not None
         compile_s = max(first - min(times), 0.0)
         compile_total += compile_s
-        rows.append({
-            "scenario": sc_name,
-            "games_per_run": n,
-            "pool_per_device": pool,
-            "compile_s": round(compile_s, 2),
-            "games_per_s": _rates(n, times),
-            "mean_turns": round(float(np.asarray(res.turns).mean()), 2),
-            "p0_win_rate": round(float((np.asarray(res.winner) == 0).mean()), 4),
-        })
+        rows.append(
+            {
+                "scenario": sc_name,
+                "games_per_run": n,
+                "pool_per_device": pool,
+                "compile_s": round(compile_s, 2),
+                "games_per_s": _rates(n, times),
+                "mean_turns": round(float(np.asarray(res.turns).mean()), 2),
+                "p0_win_rate": round(float((np.asarray(res.winner) == 0).mean()), 4),
+            }
+        )
     return {"compile_s": round(compile_total, 2), "xla_devices": devices, "results": rows}
 
 
@@ -130,7 +144,9 @@ def worker_battles(args) -> dict:
     t0 = time.perf_counter()
     arrays = named_scenario("m5v5").generate_arrays(args.battles_n, args.seed)
     t1 = time.perf_counter()
-    res = native.run_battles(native.from_arrays(arrays), args.p0, args.p1, progress=False, threads=args.cores)
+    res = native.run_battles(
+        native.from_arrays(arrays), args.p0, args.p1, progress=False, threads=args.cores
+    )
     t2 = time.perf_counter()
     peak_kib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return {
@@ -150,7 +166,12 @@ def worker_cold_compile(args) -> dict:
     return {"cold_compile_s": round(native.compile_kernels(quiet=True), 2)}
 
 
-WORKERS = {"native": worker_native, "jax": worker_jax, "battles": worker_battles, "cold-compile": worker_cold_compile}
+WORKERS = {
+    "native": worker_native,
+    "jax": worker_jax,
+    "battles": worker_battles,
+    "cold-compile": worker_cold_compile,
+}
 
 
 def spawn(kind: str, cores: int, args, extra_env: dict | None = None) -> dict:
@@ -158,9 +179,28 @@ def spawn(kind: str, cores: int, args, extra_env: dict | None = None) -> dict:
     env["NUMBA_NUM_THREADS"] = str(cores)
     env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={cores}"
     env.update(extra_env or {})
-    cmd = [sys.executable, __file__, "--worker", kind, "--cores", str(cores), "--repeats", str(args.repeats),
-           "--seed", str(args.seed), "--p0", args.p0, "--p1", args.p1, "--battles-n", str(args.battles_n),
-           "--jax-pool", str(args.jax_pool), "--scenarios", *args.scenarios]
+    cmd = [
+        sys.executable,
+        __file__,
+        "--worker",
+        kind,
+        "--cores",
+        str(cores),
+        "--repeats",
+        str(args.repeats),
+        "--seed",
+        str(args.seed),
+        "--p0",
+        args.p0,
+        "--p1",
+        args.p1,
+        "--battles-n",
+        str(args.battles_n),
+        "--jax-pool",
+        str(args.jax_pool),
+        "--scenarios",
+        *args.scenarios,
+    ]
     if kind in ("native", "jax"):
         games = args.games or [DEFAULT_GAMES[kind].get(s, 4096) for s in args.scenarios]
         if kind == "jax" and args.jax_games:
@@ -173,19 +213,27 @@ def spawn(kind: str, cores: int, args, extra_env: dict | None = None) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--engines", nargs="+", default=["native", "jax"], choices=["native", "jax"])
     ap.add_argument("--threads", nargs="+", type=int, default=[1, 2], help="core counts to time")
     ap.add_argument("--scenarios", nargs="+", default=["m5v5", "m30v30"])
     ap.add_argument("--games", nargs="+", type=int, help="games per timed run, one per scenario")
-    ap.add_argument("--jax-games", nargs="+", type=int, help="games per timed run for JAX (default smaller)")
+    ap.add_argument(
+        "--jax-games", nargs="+", type=int, help="games per timed run for JAX (default smaller)"
+    )
     ap.add_argument("--jax-pool", type=int, default=1024, help="concurrent JAX games per device")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--p0", default="attack-closest")
     ap.add_argument("--p1", default="attack-weakest")
-    ap.add_argument("--battles-n", type=int, default=100_000, help="native run_battles size (0: skip)")
-    ap.add_argument("--cold-compile", action="store_true", help="also time a native compile from an empty cache")
+    ap.add_argument(
+        "--battles-n", type=int, default=100_000, help="native run_battles size (0: skip)"
+    )
+    ap.add_argument(
+        "--cold-compile", action="store_true", help="also time a native compile from an empty cache"
+    )
     ap.add_argument("--out", help="also write the JSON here")
     ap.add_argument("--worker", choices=sorted(WORKERS), help=argparse.SUPPRESS)
     ap.add_argument("--cores", type=int, default=1, help=argparse.SUPPRESS)
@@ -219,7 +267,9 @@ def main(argv: list[str] | None = None) -> int:
         doc["native_run_battles_m5v5"] = {"cores": cores, **spawn("battles", cores, args)}
     if args.cold_compile:
         with tempfile.TemporaryDirectory() as cache:
-            doc["native_cold_compile"] = spawn("cold-compile", max(args.threads), args, {"NUMBA_CACHE_DIR": cache})
+            doc["native_cold_compile"] = spawn(
+                "cold-compile", max(args.threads), args, {"NUMBA_CACHE_DIR": cache}
+            )
     doc["uptime_after"] = _uptime()
     text = json.dumps(doc, indent=2)
     print(text)

@@ -25,10 +25,14 @@ import numpy as np
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--games", type=int, default=100_000)
     ap.add_argument("--batch", type=int, default=2 * 81 * 16, help="games per compared batch")
-    ap.add_argument("--max-side", type=int, default=10, help="most units a side (slots of every state)")
+    ap.add_argument(
+        "--max-side", type=int, default=10, help="most units a side (slots of every state)"
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="also write the JSON here")
     args = ap.parse_args(argv)

@@ -47,10 +47,38 @@ MARINE = "Terran_Marine"
 
 #: docs/speed.md#sparcraft-reference-figures: DC-HEAD, one core, StateSymmetric-like Marine states, two runs as a range.
 SPARCRAFT = {
-    8: {"uct_traversals_40ms": [165, 240], "ab_nodes_40ms": [150, 350], "ab_depth": 3, "ab_ms": [40, 46], "pgs_ms": [4.4, 6.1], "pgs_playouts": 20},
-    16: {"uct_traversals_40ms": [80, 105], "ab_nodes_40ms": [150, 200], "ab_depth": 3, "ab_ms": [45, 52], "pgs_ms": [17, 17], "pgs_playouts": 36},
-    32: {"uct_traversals_40ms": [35, 45], "ab_nodes_40ms": [50, 100], "ab_depth": [2, 3], "ab_ms": [49, 65], "pgs_ms": [83, 116], "pgs_playouts": 68},
-    50: {"uct_traversals_40ms": [20, 25], "ab_nodes_40ms": [50, 50], "ab_depth": 2, "ab_ms": [73, 89], "pgs_ms": [256, 312], "pgs_playouts": 104},
+    8: {
+        "uct_traversals_40ms": [165, 240],
+        "ab_nodes_40ms": [150, 350],
+        "ab_depth": 3,
+        "ab_ms": [40, 46],
+        "pgs_ms": [4.4, 6.1],
+        "pgs_playouts": 20,
+    },
+    16: {
+        "uct_traversals_40ms": [80, 105],
+        "ab_nodes_40ms": [150, 200],
+        "ab_depth": 3,
+        "ab_ms": [45, 52],
+        "pgs_ms": [17, 17],
+        "pgs_playouts": 36,
+    },
+    32: {
+        "uct_traversals_40ms": [35, 45],
+        "ab_nodes_40ms": [50, 100],
+        "ab_depth": [2, 3],
+        "ab_ms": [49, 65],
+        "pgs_ms": [83, 116],
+        "pgs_playouts": 68,
+    },
+    50: {
+        "uct_traversals_40ms": [20, 25],
+        "ab_nodes_40ms": [50, 50],
+        "ab_depth": 2,
+        "ab_ms": [73, 89],
+        "pgs_ms": [256, 312],
+        "pgs_playouts": 104,
+    },
 }
 
 
@@ -66,7 +94,12 @@ def _min_med(xs: list[float]) -> dict:
 def bench_speed(n: int, decisions: int, time_ms: float, seed: int, engines: list[str]) -> dict:
     rules = make_rules()
     states = [build_state(s) for s in _states(n, decisions, seed)]
-    row: dict = {"n": n, "decisions": decisions, "sparcraft": SPARCRAFT.get(n), "loadavg_start": [round(x, 2) for x in os.getloadavg()]}
+    row: dict = {
+        "n": n,
+        "decisions": decisions,
+        "sparcraft": SPARCRAFT.get(n),
+        "loadavg_start": [round(x, 2) for x in os.getloadavg()],
+    }
     for engine in engines:
         row[engine] = _bench_engine(n, states, rules, time_ms, seed, engine)
     row["loadavg_end"] = [round(x, 2) for x in os.getloadavg()]
@@ -102,12 +135,16 @@ def _bench_engine(n: int, states: list, rules, time_ms: float, seed: int, engine
         }
         if alg == "uct":
             out["traversals"] = _min_med([s.traversals for s in stats])
-            out["traversals_per_40ms_cpu"] = _min_med([round(40 * s.traversals / max(s.cpu_ms, 1e-3), 1) for s in stats])
+            out["traversals_per_40ms_cpu"] = _min_med(
+                [round(40 * s.traversals / max(s.cpu_ms, 1e-3), 1) for s in stats]
+            )
             out["tree_depth"] = _min_med([s.depth for s in stats])
         elif alg == "abcd":
             out["nodes"] = _min_med([s.nodes for s in stats])
             out["depth_completed"] = _min_med([s.depth for s in stats])
-            out["nodes_per_40ms_cpu"] = _min_med([round(40 * s.nodes / max(s.cpu_ms, 1e-3), 1) for s in stats])
+            out["nodes_per_40ms_cpu"] = _min_med(
+                [round(40 * s.nodes / max(s.cpu_ms, 1e-3), 1) for s in stats]
+            )
             out["fallback_decisions"] = sum(s.fallback for s in stats)
         row[alg] = out
         print(f"  {n}v{n} {engine} {alg}: {json.dumps(out)}", file=sys.stderr, flush=True)
@@ -148,7 +185,10 @@ def sanity(players: list[str], battles: int, seed: int) -> dict:
     rules = make_rules()
     units = _states(8, battles, seed + 1000)
     base = run_battles(units, "nokdps", "nokdps", rules=rules, progress=False).summary()
-    out: dict = {"states": "8v8 Marines, StateSymmetric offsets [-128,127] around (640,360)", "nokdps_vs_nokdps": base}
+    out: dict = {
+        "states": "8v8 Marines, StateSymmetric offsets [-128,127] around (640,360)",
+        "nokdps_vs_nokdps": base,
+    }
     for spec in players:
         wins = losses = draws = 0
         ms: list[float] = []
@@ -179,14 +219,31 @@ def sanity(players: list[str], battles: int, seed: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", type=int, nargs="+", default=[8, 32, 50], help="n for n-vs-n Marine states")
-    ap.add_argument("--decisions", type=int, default=5, help="timed decisions (distinct start states) per size")
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--sizes", type=int, nargs="+", default=[8, 32, 50], help="n for n-vs-n Marine states"
+    )
+    ap.add_argument(
+        "--decisions", type=int, default=5, help="timed decisions (distinct start states) per size"
+    )
     ap.add_argument("--time-ms", type=float, default=40.0, help="UCT / ABCD budget per decision")
     ap.add_argument("--battles", type=int, default=30, help="sanity battles per search player")
-    ap.add_argument("--sanity-players", nargs="+", default=["uct", "pgs"], help="player specs for the sanity battles")
+    ap.add_argument(
+        "--sanity-players",
+        nargs="+",
+        default=["uct", "pgs"],
+        help="player specs for the sanity battles",
+    )
     ap.add_argument("--no-sanity", action="store_true", help="skip the sanity battles")
-    ap.add_argument("--engines", nargs="+", default=["native", "jax"], choices=["native", "jax"], help="engines to measure, side by side")
+    ap.add_argument(
+        "--engines",
+        nargs="+",
+        default=["native", "jax"],
+        choices=["native", "jax"],
+        help="engines to measure, side by side",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, help="also write the JSON here")
     args = ap.parse_args(argv)
@@ -201,7 +258,10 @@ def main(argv: list[str] | None = None) -> int:
             "backend": jax.default_backend(),
             "loadavg_start": [round(x, 2) for x in load0],
         },
-        "speed": [bench_speed(n, args.decisions, args.time_ms, args.seed, args.engines) for n in args.sizes],
+        "speed": [
+            bench_speed(n, args.decisions, args.time_ms, args.seed, args.engines)
+            for n in args.sizes
+        ],
     }
     doc["table"] = table(doc["speed"], args.engines)
     print(doc["table"], file=sys.stderr, flush=True)

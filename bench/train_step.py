@@ -63,8 +63,13 @@ def compare_engines(task, cfg, jax_learner, pool, actor, cv, repeats):
             t0 = time.perf_counter()
             jax.block_until_ready(lr.train_chunk(pool, actor, cv, None))
             per_step[name].append((time.perf_counter() - t0) / cfg.chunk_steps)
-    split = {k: round(v / native.timing["steps"], 5) for k, v in native.timing.items() if k != "steps"}
-    summary = {name: {"min": round(min(v), 5), "median": round(statistics.median(v), 5)} for name, v in per_step.items()}
+    split = {
+        k: round(v / native.timing["steps"], 5) for k, v in native.timing.items() if k != "steps"
+    }
+    summary = {
+        name: {"min": round(min(v), 5), "median": round(statistics.median(v), 5)}
+        for name, v in per_step.items()
+    }
     return {
         "seconds_per_step": summary,
         "speedup_native_over_jax": {
@@ -85,9 +90,21 @@ def main() -> None:
     p.add_argument("--scenario", default="m5v5")
     p.add_argument("--preset", default="quick")
     p.add_argument("--repeats", type=int, default=3)
-    p.add_argument("--work-batch", type=int, help="override the preset's brd_work_batch (0: the dense schedule)")
-    p.add_argument("--lookahead-policy", choices=["start", "actor", "demonstrator"], help="override the preset's lookahead_policy")
-    p.add_argument("--compare", action="store_true", help="also time the whole training step on both engines, interleaved (engine=jax vs engine=native)")
+    p.add_argument(
+        "--work-batch",
+        type=int,
+        help="override the preset's brd_work_batch (0: the dense schedule)",
+    )
+    p.add_argument(
+        "--lookahead-policy",
+        choices=["start", "actor", "demonstrator"],
+        help="override the preset's lookahead_policy",
+    )
+    p.add_argument(
+        "--compare",
+        action="store_true",
+        help="also time the whole training step on both engines, interleaved (engine=jax vs engine=native)",
+    )
     args = p.parse_args()
     cfg = PRESETS[args.preset](args.env).replace(scenario=args.scenario)
     if args.work_batch is not None:
@@ -98,21 +115,32 @@ def main() -> None:
     learner = build_learner(task, cfg.replace(engine="jax"), cfg.demonstrator_name())
     b = cfg.num_envs
     actor = nets.init_net(learner.actor_mod, jax.random.key(0), task.obs_dim, learner.actor_tx)
-    critic = nets.init_net(learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx)
+    critic = nets.init_net(
+        learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx
+    )
     pool = new_pool(task, jax.random.key(2), b)
     # Warm the pool up to mid-game states with the demonstrator.
     for _ in range(2):
         pool, _ = learner.demo_chunk(pool, None)
     cv = _vars(critic)
     # The preset's own Q estimate (lookahead steps and continuation policy), as in the chunk.
-    q_fn = learner.brd_q_fn(actor, cv, None, gamma=cfg.gamma, lookahead=simulated_steps(cfg), continuation=continuation_policy(cfg))
+    q_fn = learner.brd_q_fn(
+        actor,
+        cv,
+        None,
+        gamma=cfg.gamma,
+        lookahead=simulated_steps(cfg),
+        continuation=continuation_policy(cfg),
+    )
     keys = jax.random.split(jax.random.key(3), b)
     legal = jax.vmap(task.avail)(pool.states)
 
     @jax.jit
     def brd(states, obs, legal):
         a0 = nets.actor_actions(learner.actor_mod, actor, obs, legal)
-        return best_response_dynamics(q_fn, keys, states, a0, legal, cfg.brd_iterations, work_batch=cfg.brd_work_batch)
+        return best_response_dynamics(
+            q_fn, keys, states, a0, legal, cfg.brd_iterations, work_batch=cfg.brd_work_batch
+        )
 
     res = brd(pool.states, pool.obs, legal)
     t_brd, c_brd = timed(brd, pool.states, pool.obs, legal, repeats=args.repeats)
@@ -122,12 +150,25 @@ def main() -> None:
     @jax.jit
     def update(actor, obs):
         def loss_fn(params):
-            logits, bs = nets.apply_train(learner.actor_mod, params, actor.batch_stats, obs.reshape(b * task.num_agents, -1), mask=w)
-            return actor_loss(logits, adv.reshape(b * task.num_agents, -1), legal.reshape(b * task.num_agents, -1), w), bs
+            logits, bs = nets.apply_train(
+                learner.actor_mod,
+                params,
+                actor.batch_stats,
+                obs.reshape(b * task.num_agents, -1),
+                mask=w,
+            )
+            return actor_loss(
+                logits,
+                adv.reshape(b * task.num_agents, -1),
+                legal.reshape(b * task.num_agents, -1),
+                w,
+            ), bs
 
         (loss, bs), g = jax.value_and_grad(loss_fn, has_aux=True)(actor.params)
         upd, opt = learner.actor_tx.update(g, actor.opt_state, actor.params)
-        return actor.replace(params=optax.apply_updates(actor.params, upd), batch_stats=bs, opt_state=opt)
+        return actor.replace(
+            params=optax.apply_updates(actor.params, upd), batch_stats=bs, opt_state=opt
+        )
 
     t_upd, _ = timed(update, actor, pool.obs, repeats=args.repeats)
 
@@ -146,21 +187,40 @@ def main() -> None:
     buf.add(s, r)
     t_host = time.perf_counter() - t0
     steps = 200
-    t_fit, _ = timed(lambda: learner.fit_critic(critic, *buf.device_arrays(), jax.random.key(4), jnp.asarray(steps)), repeats=1)
+    t_fit, _ = timed(
+        lambda: learner.fit_critic(
+            critic, *buf.device_arrays(), jax.random.key(4), jnp.asarray(steps)
+        ),
+        repeats=1,
+    )
     per_step = t_chunk / cfg.chunk_steps
     doc = {
-        "env": args.env, "scenario": args.scenario if args.env == "combat" else None, "preset": args.preset,
-        "lookahead_steps": cfg.lookahead_steps, "lookahead_policy": continuation_policy(cfg),
-        "batch": b, "agents": task.num_agents, "actions": task.num_actions, "chunk_steps": cfg.chunk_steps,
-        "brd_work_batch": cfg.brd_work_batch, "brd_calls": int(res.visits), "brd_agent_visits": int(res.evaluated), "brd_simulated": int(res.simulated),
+        "env": args.env,
+        "scenario": args.scenario if args.env == "combat" else None,
+        "preset": args.preset,
+        "lookahead_steps": cfg.lookahead_steps,
+        "lookahead_policy": continuation_policy(cfg),
+        "batch": b,
+        "agents": task.num_agents,
+        "actions": task.num_actions,
+        "chunk_steps": cfg.chunk_steps,
+        "brd_work_batch": cfg.brd_work_batch,
+        "brd_calls": int(res.visits),
+        "brd_agent_visits": int(res.evaluated),
+        "brd_simulated": int(res.simulated),
         "brd_update_sweeps": int(res.sweeps),
         "seconds": {
-            "brd": round(t_brd, 5), "actor_update": round(t_upd, 5), "env_step": round(t_env, 5),
-            "chunk_per_step": round(per_step, 5), "host_per_chunk": round(t_host, 5),
+            "brd": round(t_brd, 5),
+            "actor_update": round(t_upd, 5),
+            "env_step": round(t_env, 5),
+            "chunk_per_step": round(per_step, 5),
+            "host_per_chunk": round(t_host, 5),
             "critic_fit_per_sgd_step": round(t_fit / steps, 6),
         },
         "share_of_step": {
-            "brd": round(t_brd / per_step, 3), "actor_update": round(t_upd / per_step, 3), "env_step": round(t_env / per_step, 3),
+            "brd": round(t_brd / per_step, 3),
+            "actor_update": round(t_upd / per_step, 3),
+            "env_step": round(t_env / per_step, 3),
         },
         "env_steps_per_s": round(b / per_step, 1),
         "compile_s": {"brd": round(c_brd, 1), "chunk": round(c_chunk, 1)},

@@ -46,8 +46,12 @@ def evaluate_best(task_dir: Path) -> dict[str, Any] | None:
     c = json.loads((task_dir / "task.json").read_text())["config"]
     ev = evaluate_run(run_dir, c, BEST)
     result = {
-        "summary": ev["summary"], "per_episode": ev["per_episode"], "episodes": ev["meta"].get("episodes"),
-        "selection": ev["meta"].get("selection"), "wall_s": ev["wall_s"], "cpu_s": ev["cpu_s"],
+        "summary": ev["summary"],
+        "per_episode": ev["per_episode"],
+        "episodes": ev["meta"].get("episodes"),
+        "selection": ev["meta"].get("selection"),
+        "wall_s": ev["wall_s"],
+        "cpu_s": ev["cpu_s"],
     }
     write_json_atomic(out, result)
     return result
@@ -61,7 +65,9 @@ def main() -> None:
 
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--grid", required=True, help="the output folder of `hybridmarl reproduce`")
-    ap.add_argument("--rows", default="Ours", help="comma-separated learner rows of Table 1 (default: Ours)")
+    ap.add_argument(
+        "--rows", default="Ours", help="comma-separated learner rows of Table 1 (default: Ours)"
+    )
     ap.add_argument("--scenarios", default=None, help="comma-separated scenarios (default: all)")
     args = ap.parse_args()
     out = Path(args.grid)
@@ -91,18 +97,31 @@ def main() -> None:
                 final = state.results[key]
                 won_best = np.asarray(best["per_episode"]["won"]) > 0
                 stats = paired_wins(won_best, np.asarray(final["per_episode"]["won"]) > 0)
-                entries.append({
-                    "task": task.dirname, "seed": task.config["seed"], "best_episodes": best["episodes"],
-                    "selection_W": (best["selection"] or {}).get("W"), "W_final": stats["W_b"], "W_best": stats["W_a"],
-                    "R_final": final["summary"]["R"], "R_best": best["summary"]["R"], "dW": stats["dW"],
-                    "dW_ci95": [stats["dW_low"], stats["dW_high"]], "only_best": stats["only_a"],
-                    "only_final": stats["only_b"], "p_mcnemar": stats["p_mcnemar"], "eval_cpu_s": best["cpu_s"],
-                })
+                entries.append(
+                    {
+                        "task": task.dirname,
+                        "seed": task.config["seed"],
+                        "best_episodes": best["episodes"],
+                        "selection_W": (best["selection"] or {}).get("W"),
+                        "W_final": stats["W_b"],
+                        "W_best": stats["W_a"],
+                        "R_final": final["summary"]["R"],
+                        "R_best": best["summary"]["R"],
+                        "dW": stats["dW"],
+                        "dW_ci95": [stats["dW_low"], stats["dW_high"]],
+                        "only_best": stats["only_a"],
+                        "only_final": stats["only_b"],
+                        "p_mcnemar": stats["p_mcnemar"],
+                        "eval_cpu_s": best["cpu_s"],
+                    }
+                )
                 bests.append(best["per_episode"])
             else:
                 tasks.extend(entries)
                 per_state = np.mean([np.asarray(b["won"], np.float64) for b in bests], axis=0)
-                others = {r: s for r, s in summaries.items() if r not in rows and s["status"] == "done"}
+                others = {
+                    r: s for r, s in summaries.items() if r not in rows and s["status"] == "done"
+                }
                 rival = max(others, key=lambda r: others[r]["W"]) if others else None
                 cells[f"{cell.row} {column}"] = {
                     "seeds": len(entries),
@@ -113,7 +132,11 @@ def main() -> None:
                     "best_other_row": rival,
                     "W_best_other_row": others[rival]["W"] if rival else None,
                     # Per state, the best checkpoints' wins averaged over seeds, as the grid's own test.
-                    "paired_best_vs_other": paired_test(per_state.tolist(), others[rival]["per_state"]["won"]) if rival else None,
+                    "paired_best_vs_other": paired_test(
+                        per_state.tolist(), others[rival]["per_state"]["won"]
+                    )
+                    if rival
+                    else None,
                 }
     print(json.dumps({"grid": args.grid, "cells": cells, "tasks": tasks}, indent=1))
 

@@ -50,20 +50,44 @@ def main() -> None:
     ap.add_argument("--env", default="combat", choices=["combat", "traffic_junction"])
     ap.add_argument("--scenario", default="m5v5")
     ap.add_argument("--enemy", default="attack-weakest")
-    ap.add_argument("--demonstrator", default=None, help="default: attack-closest (combat), always-gas (TJ)")
+    ap.add_argument(
+        "--demonstrator", default=None, help="default: attack-closest (combat), always-gas (TJ)"
+    )
     ap.add_argument("--q", default="critic", choices=["critic", "exact"])
-    ap.add_argument("--lookahead", type=int, default=1, help="simulated steps before the critic (--q critic)")
+    ap.add_argument(
+        "--lookahead", type=int, default=1, help="simulated steps before the critic (--q critic)"
+    )
     ap.add_argument("--iterations", type=int, default=7, help="Alg. 1 iterations (paper: 7)")
     ap.add_argument("--games", type=int, default=64, help="games played by each policy")
-    ap.add_argument("--pretrain-samples", type=int, default=None, help="critic pairs (default: the quick-paper preset's)")
-    ap.add_argument("--fit-steps", type=int, default=None, help="critic SGD steps (default: the quick-paper preset's)")
-    ap.add_argument("--holdout", type=int, default=4000, help="held-out pairs to measure the critic's error")
+    ap.add_argument(
+        "--pretrain-samples",
+        type=int,
+        default=None,
+        help="critic pairs (default: the quick-paper preset's)",
+    )
+    ap.add_argument(
+        "--fit-steps",
+        type=int,
+        default=None,
+        help="critic SGD steps (default: the quick-paper preset's)",
+    )
+    ap.add_argument(
+        "--holdout", type=int, default=4000, help="held-out pairs to measure the critic's error"
+    )
     ap.add_argument("--max-steps", type=int, default=400, help="step cap per game (combat)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--run-dir", default=None, help="use this hybrid run's task, demonstrator and the critic of its "
-                    "checkpoint instead of pre-training one (--q critic)")
-    ap.add_argument("--checkpoint", default=None, help="with --run-dir: episode count or name (default: the newest; "
-                    "0: the critic right after pre-training)")
+    ap.add_argument(
+        "--run-dir",
+        default=None,
+        help="use this hybrid run's task, demonstrator and the critic of its "
+        "checkpoint instead of pre-training one (--q critic)",
+    )
+    ap.add_argument(
+        "--checkpoint",
+        default=None,
+        help="with --run-dir: episode count or name (default: the newest; "
+        "0: the critic right after pre-training)",
+    )
     args = ap.parse_args()
 
     if args.run_dir:
@@ -72,22 +96,37 @@ def main() -> None:
         demo_name = cfg.demonstrator_name()
         args.env = cfg.env
     else:
-        demo_name = args.demonstrator or ("attack-closest" if args.env == "combat" else "always-gas")
+        demo_name = args.demonstrator or (
+            "attack-closest" if args.env == "combat" else "always-gas"
+        )
         # The critic of docs/results.md's measurements: every visited state of A^D's episodes
         # (20,000 pairs; Traffic Junction 8,000), fitted with Adam.
         base = H.PRESETS["quick-paper"](args.env).replace(
-            optimizer="adam", pretrain_trajectories=0, pretrain_samples=20_000 if args.env == "combat" else 8_000
+            optimizer="adam",
+            pretrain_trajectories=0,
+            pretrain_samples=20_000 if args.env == "combat" else 8_000,
         )
-        cfg = base.replace(scenario=args.scenario, enemy=args.enemy, demonstrator=demo_name, seed=args.seed,
+        cfg = base.replace(
+            scenario=args.scenario,
+            enemy=args.enemy,
+            demonstrator=demo_name,
+            seed=args.seed,
             pretrain_samples=args.pretrain_samples or base.pretrain_samples,
             critic_pretrain_steps=args.fit_steps or base.critic_pretrain_steps,
         )
     task = make_task(cfg.task_spec())
     learner = H.build_learner(task, cfg, demo_name)
     demo = task.demonstrator(demo_name)
-    out: dict = {"env": args.env, "scenario": args.scenario if args.env == "combat" else None, "demonstrator": demo_name,
-                 "q": args.q, "lookahead": args.lookahead if args.q == "critic" else None, "iterations": args.iterations,
-                 "games": args.games, "seed": args.seed}
+    out: dict = {
+        "env": args.env,
+        "scenario": args.scenario if args.env == "combat" else None,
+        "demonstrator": demo_name,
+        "q": args.q,
+        "lookahead": args.lookahead if args.q == "critic" else None,
+        "iterations": args.iterations,
+        "games": args.games,
+        "seed": args.seed,
+    }
 
     # -- the critic (Eq. 3 on the demonstrator's returns), unless Q is exact ----------------------
     def zero_value(s):
@@ -96,7 +135,9 @@ def main() -> None:
     value_fn = zero_value
     if args.q == "critic" and args.run_dir:
         arrays, _ = load_checkpoint(find_checkpoint(args.run_dir, args.checkpoint))
-        template = nets.init_net(learner.critic_mod, jax.random.key(0), task.critic_dim, learner.critic_tx)
+        template = nets.init_net(
+            learner.critic_mod, jax.random.key(0), task.critic_dim, learner.critic_tx
+        )
         critic = unflatten_named(template, subtree(arrays, "critic"))
         value_fn = learner.value_fn({"params": critic.params, "batch_stats": critic.batch_stats})
         out["critic"] = {"run_dir": args.run_dir, "checkpoint": args.checkpoint}
@@ -114,16 +155,28 @@ def main() -> None:
             train_buf.add({k: v[:cut] for k, v in states.items()}, returns[:cut])
             held.add({k: v[cut:] for k, v in states.items()}, returns[cut:])
             got += int(returns.size)
-        critic = nets.init_net(learner.critic_mod, jax.random.key(args.seed + 2), task.critic_dim, learner.critic_tx)
-        critic, loss = learner.fit_critic(critic, *train_buf.device_arrays(), jax.random.key(args.seed + 3), jnp.asarray(cfg.critic_pretrain_steps))
+        critic = nets.init_net(
+            learner.critic_mod, jax.random.key(args.seed + 2), task.critic_dim, learner.critic_tx
+        )
+        critic, loss = learner.fit_critic(
+            critic,
+            *train_buf.device_arrays(),
+            jax.random.key(args.seed + 3),
+            jnp.asarray(cfg.critic_pretrain_steps),
+        )
         critic_vars = {"params": critic.params, "batch_stats": critic.batch_stats}
         value_fn = learner.value_fn(critic_vars)
         hs, hr, hn = held.device_arrays()
         pred = np.asarray(jax.jit(value_fn)(hs))[: int(hn)]
         target = np.asarray(hr)[: int(hn)]
-        out["critic"] = {"pairs": int(train_buf.size), "fit_steps": cfg.critic_pretrain_steps, "train_mse": float(loss),
-                         "heldout_mse": float(np.mean((pred - target) ** 2)), "heldout_return_var": float(np.var(target)),
-                         "seconds": round(time.time() - t0, 1)}
+        out["critic"] = {
+            "pairs": int(train_buf.size),
+            "fit_steps": cfg.critic_pretrain_steps,
+            "train_mse": float(loss),
+            "heldout_mse": float(np.mean((pred - target) ** 2)),
+            "heldout_return_var": float(np.var(target)),
+            "seconds": round(time.time() - t0, 1),
+        }
 
     def step_fn(key, s, a):
         _, s2, r, d, _ = task.step(key, s, a)
@@ -133,7 +186,9 @@ def main() -> None:
         return jax.vmap(demo)(keys, states).astype(jnp.int32)
 
     steps = 1_000_000 if args.q == "exact" else max(args.lookahead, 1)
-    q_fn = make_q_fn(task.lookahead, value_fn, cfg.gamma, steps=steps, step_fn=step_fn, policy_fn=continuation)
+    q_fn = make_q_fn(
+        task.lookahead, value_fn, cfg.gamma, steps=steps, step_fn=step_fn, policy_fn=continuation
+    )
     b = args.games
 
     @jax.jit
@@ -168,7 +223,11 @@ def main() -> None:
             live = decider & ~done[:, None]
             decisions += int(live.sum())
             for g, i in zip(*np.nonzero(live & (a != a0)), strict=True):
-                changes[f"{_kind(int(a0[g, i]))}->{_kind(int(a[g, i]))}" if task.kind == "combat" else f"{int(a0[g, i])}->{int(a[g, i])}"] += 1
+                changes[
+                    f"{_kind(int(a0[g, i]))}->{_kind(int(a[g, i]))}"
+                    if task.kind == "combat"
+                    else f"{int(a0[g, i])}->{int(a[g, i])}"
+                ] += 1
             _, states, _, d, info = env_step(k_env, states, jnp.asarray(a))
             d = np.asarray(d)
             new = d & ~done
@@ -185,8 +244,12 @@ def main() -> None:
         else:
             res.update(failure_rate=float(result["failed"].mean()))
         if use_brd:
-            res.update(decisions=decisions, changed=int(sum(changes.values())), changed_frac=sum(changes.values()) / max(decisions, 1),
-                       changes=dict(changes.most_common()))
+            res.update(
+                decisions=decisions,
+                changed=int(sum(changes.values())),
+                changed_frac=sum(changes.values()) / max(decisions, 1),
+                changes=dict(changes.most_common()),
+            )
         return res
 
     out["demonstrator_play"] = play(False)

@@ -33,18 +33,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", required=True, help="folder for the datasets and manifest.json")
     ap.add_argument("--scenario", default="m5v5")
     ap.add_argument("--enemy", default="attack-weakest")
-    ap.add_argument("--setting", default="sparcraft", help="named setting (docs/engine.md#settings)")
-    ap.add_argument("--scripts", default=",".join(DEFAULT_SCRIPTS), help="comma-separated engine scripts")
-    ap.add_argument("--noise", type=float, default=DEFAULT_NOISE, help="ε of the noisy versions (0: none)")
+    ap.add_argument(
+        "--setting", default="sparcraft", help="named setting (docs/engine.md#settings)"
+    )
+    ap.add_argument(
+        "--scripts", default=",".join(DEFAULT_SCRIPTS), help="comma-separated engine scripts"
+    )
+    ap.add_argument(
+        "--noise", type=float, default=DEFAULT_NOISE, help="ε of the noisy versions (0: none)"
+    )
     ap.add_argument("--observations", type=int, default=10_000, help="joint states per dataset")
     ap.add_argument("--eval-battles", type=int, default=200, help="battles per demonstrator for W")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--num-envs", type=int, default=64)
     args = ap.parse_args(argv)
     spec = GradedSpec(
-        scenario=args.scenario, enemy=args.enemy, setting=args.setting, scripts=scripts_arg(args.scripts),
-        noise=args.noise, num_observations=args.observations, eval_battles=args.eval_battles,
-        seed=args.seed, num_envs=args.num_envs,
+        scenario=args.scenario,
+        enemy=args.enemy,
+        setting=args.setting,
+        scripts=scripts_arg(args.scripts),
+        noise=args.noise,
+        num_observations=args.observations,
+        eval_battles=args.eval_battles,
+        seed=args.seed,
+        num_envs=args.num_envs,
     )
     try:
         manifest = generate_graded(args.out, spec)

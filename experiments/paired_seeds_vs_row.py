@@ -38,9 +38,21 @@ def main() -> int:
     from hybridmarl.reproduce.outputs import cell_summary, paired_test
 
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
-    ap.add_argument("--runs", required=True, nargs="+", type=Path, help="finished runs of `hybridmarl train`, one per seed")
-    ap.add_argument("--grid", required=True, type=Path, help="the output folder of `hybridmarl reproduce`")
-    ap.add_argument("--row", default=None, help="the row of the runs' column to pair with (default: the best other than Ours)")
+    ap.add_argument(
+        "--runs",
+        required=True,
+        nargs="+",
+        type=Path,
+        help="finished runs of `hybridmarl train`, one per seed",
+    )
+    ap.add_argument(
+        "--grid", required=True, type=Path, help="the output folder of `hybridmarl reproduce`"
+    )
+    ap.add_argument(
+        "--row",
+        default=None,
+        help="the row of the runs' column to pair with (default: the best other than Ours)",
+    )
     args = ap.parse_args()
 
     columns = set()
@@ -55,11 +67,17 @@ def main() -> int:
         return 2
     scenario, demonstrator, setting = columns.pop()
     if not (args.grid / "reproduce.json").is_file():
-        print(f"{args.grid}: not an output folder of `hybridmarl reproduce` (no reproduce.json)", file=sys.stderr)
+        print(
+            f"{args.grid}: not an output folder of `hybridmarl reproduce` (no reproduce.json)",
+            file=sys.stderr,
+        )
         return 2
     made = json.loads((args.grid / "reproduce.json").read_text())
     if made["setting"] != setting:
-        print(f"the runs are in the {setting!r} setting and the grid in {made['setting']!r}", file=sys.stderr)
+        print(
+            f"the runs are in the {setting!r} setting and the grid in {made['setting']!r}",
+            file=sys.stderr,
+        )
         return 2
     letters = [k for k, v in P.DEMONSTRATORS.items() if v == demonstrator]
     if not letters:
@@ -75,7 +93,9 @@ def main() -> int:
     done = {row: s for row, s in summaries.items() if s["status"] == "done" and row != "Ours"}
     if args.row is not None:
         if args.row not in done:
-            print(f"--row {args.row}: not a finished row of {column} in {args.grid}", file=sys.stderr)
+            print(
+                f"--row {args.row}: not a finished row of {column} in {args.grid}", file=sys.stderr
+            )
             return 2
         rival = args.row
     elif done:
@@ -89,18 +109,34 @@ def main() -> int:
     # -- the runs, on the same start states ------------------------------------------------------
     runs = [evaluate_cached(run, c0, None) for run in args.runs]
     won = np.mean([np.asarray(r["per_episode"]["won"], np.float64) for r in runs], axis=0)
-    hp = np.mean([np.asarray(r["per_episode"]["terminal_hp_reward"], np.float64) for r in runs], axis=0)
+    hp = np.mean(
+        [np.asarray(r["per_episode"]["terminal_hp_reward"], np.float64) for r in runs], axis=0
+    )
     w = paired_test(won.tolist(), row_state["won"])
     r = paired_test(hp.tolist(), row_state["terminal_hp_reward"])
-    print(json.dumps({
-        "runs": [str(p) for p in args.runs], "column": column, "setting": setting,
-        "against": rival, "rows_considered": {row: round(s["W"], 4) for row, s in sorted(done.items())},
-        "W_runs": float(won.mean()), "W_each_run": [x["summary"]["W"] for x in runs],
-        "W_row": float(np.mean(row_state["won"])), "dW": w["diff"], "p_W": w["p"],
-        "R_runs": float(hp.mean()), "R_each_run": [x["summary"]["R"] for x in runs],
-        "R_row": float(np.mean(row_state["terminal_hp_reward"])), "dR": r["diff"], "p_R": r["p"],
-        "n_states": int(won.size),
-    }, indent=1))
+    print(
+        json.dumps(
+            {
+                "runs": [str(p) for p in args.runs],
+                "column": column,
+                "setting": setting,
+                "against": rival,
+                "rows_considered": {row: round(s["W"], 4) for row, s in sorted(done.items())},
+                "W_runs": float(won.mean()),
+                "W_each_run": [x["summary"]["W"] for x in runs],
+                "W_row": float(np.mean(row_state["won"])),
+                "dW": w["diff"],
+                "p_W": w["p"],
+                "R_runs": float(hp.mean()),
+                "R_each_run": [x["summary"]["R"] for x in runs],
+                "R_row": float(np.mean(row_state["terminal_hp_reward"])),
+                "dR": r["diff"],
+                "p_R": r["p"],
+                "n_states": int(won.size),
+            },
+            indent=1,
+        )
+    )
     return 0
 
 

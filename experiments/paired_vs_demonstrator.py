@@ -33,20 +33,43 @@ from hybridmarl.training.task import default_enemy, make_task
 def main() -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--run-dir", required=True)
-    ap.add_argument("--checkpoint", type=int, default=None, help="episode count of a kept checkpoint (default: the final policy)")
+    ap.add_argument(
+        "--checkpoint",
+        type=int,
+        default=None,
+        help="episode count of a kept checkpoint (default: the final policy)",
+    )
     ap.add_argument("--n", type=int, default=1000, help="start states")
-    ap.add_argument("--seed", type=int, default=20200713, help="the start states of `hybridmarl eval --seed SEED` (default: the reproduction protocol's)")
+    ap.add_argument(
+        "--seed",
+        type=int,
+        default=20200713,
+        help="the start states of `hybridmarl eval --seed SEED` (default: the reproduction protocol's)",
+    )
     args = ap.parse_args()
 
     bundle = E.load_policy(args.run_dir, checkpoint=args.checkpoint)
     demonstrator = bundle.config["config"]["demonstrator_name"]
     task = make_task(dataclasses.replace(bundle.spec, enemy=default_enemy(demonstrator)))
     key = jax.random.key(args.seed)
-    learner = E.run_episodes(task, E.actor_policy(bundle.module), bundle.variables, key, args.n)["won"] > 0
+    learner = (
+        E.run_episodes(task, E.actor_policy(bundle.module), bundle.variables, key, args.n)["won"]
+        > 0
+    )
     demo = E.run_scripted_episodes_native(task, demonstrator, key, args.n)["won"] > 0
-    out = {"run_dir": args.run_dir, "checkpoint": args.checkpoint, "seed": args.seed, "demonstrator": demonstrator}
+    out = {
+        "run_dir": args.run_dir,
+        "checkpoint": args.checkpoint,
+        "seed": args.seed,
+        "demonstrator": demonstrator,
+    }
     stats = paired_wins(np.asarray(learner), np.asarray(demo))
-    names = {"W_a": "W", "W_b": "W_demonstrator", "only_a": "only_learner_wins", "only_b": "only_demonstrator_wins"}
+    names = {
+        "W_a": "W",
+        "W_b": "W_demonstrator",
+        "only_a": "only_learner_wins",
+        "only_b": "only_demonstrator_wins",
+    }
     print(json.dumps(out | {names.get(k, k): v for k, v in stats.items()}))
 
 

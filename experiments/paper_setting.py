@@ -30,7 +30,12 @@ import time
 
 #: Paper Table 1: W of D_c (ours = attack-closest vs enemy attack-weakest) and of D_w (ours =
 #: attack-weakest vs enemy attack-closest).
-PAPER = {"m5v5": (0.43, 0.61), "m30v30": (0.75, 0.13), "m18v20": (0.32, 0.03), "m24v30": (0.12, 0.00)}
+PAPER = {
+    "m5v5": (0.43, 0.61),
+    "m30v30": (0.75, 0.13),
+    "m18v20": (0.32, 0.03),
+    "m24v30": (0.12, 0.00),
+}
 #: Paper Table 2: the Traffic Junction demonstrator's failure rate.
 PAPER_TJ_FAILURE = 0.72
 CELLS = (("D_c", "attack-closest", "attack-weakest"), ("D_w", "attack-weakest", "attack-closest"))
@@ -63,7 +68,13 @@ def check(n: int, seed: int) -> dict:
             **{cell: {**v, "paper_W": paper[i]} for i, (cell, v) in enumerate(cells.items())},
         }
     worst = max(abs(r[c]["W"] - r[c]["paper_W"]) for r in rows.values() for c in ("D_c", "D_w"))
-    return {"setting": setting.to_dict(), "n": n, "seed": seed, "max_abs_diff": round(worst, 4), "scenarios": rows}
+    return {
+        "setting": setting.to_dict(),
+        "n": n,
+        "seed": seed,
+        "max_abs_diff": round(worst, 4),
+        "scenarios": rows,
+    }
 
 
 def markdown(doc: dict) -> str:
@@ -76,7 +87,9 @@ def markdown(doc: dict) -> str:
         paper = [f"{r[cell]['paper_W']:.2f}" for r in doc["scenarios"].values()]
         lines.append(f"| {cell} W, ours | " + " | ".join(ours) + " |")
         lines.append(f"| {cell} W, paper | " + " | ".join(paper) + " |")
-    draws = [f"{r['D_c']['draws']:.2f} / {r['D_w']['draws']:.2f}" for r in doc["scenarios"].values()]
+    draws = [
+        f"{r['D_c']['draws']:.2f} / {r['D_w']['draws']:.2f}" for r in doc["scenarios"].values()
+    ]
     lines.append("| draws (D_c / D_w), ours | " + " | ".join(draws) + " |")
     return "\n".join(lines)
 
@@ -93,16 +106,24 @@ def sweep(rules_arg: str, n: int, seed: int) -> None:
         for name, (a, b) in sizes.items():
             sep = int(round(c + k * (a + b)))
             sc = Scenario(
-                name=name, side0=(("Terran_Marine", a),), side1=(("Terran_Marine", b),),
-                center0=(640 - sep // 2, 352), center1=(640 - sep // 2 + sep, 352),
-                radius0=int(r), radius1=int(r),
+                name=name,
+                side0=(("Terran_Marine", a),),
+                side1=(("Terran_Marine", b),),
+                center0=(640 - sep // 2, 352),
+                center1=(640 - sep // 2 + sep, 352),
+                radius0=int(r),
+                radius1=int(r),
             )
             cells = play_cells(sc, rules, n, seed)
             row["cells"][name] = {"separation": sep, **{cell: v["W"] for cell, v in cells.items()}}
-        row["max_abs_diff"] = round(max(
-            abs(row["cells"][name][cell] - PAPER[name][i])
-            for name in PAPER for i, cell in enumerate(("D_c", "D_w"))
-        ), 4)
+        row["max_abs_diff"] = round(
+            max(
+                abs(row["cells"][name][cell] - PAPER[name][i])
+                for name in PAPER
+                for i, cell in enumerate(("D_c", "D_w"))
+            ),
+            4,
+        )
         print(json.dumps(row), flush=True)
 
 
@@ -127,7 +148,9 @@ def traffic_junction(probs: list[float], episodes: int, seeds: list[int]) -> dic
 
     @jax.jit
     def run(key, params):
-        failed, arrivals = jax.vmap(episode, in_axes=(0, None))(jax.random.split(key, episodes), params)
+        failed, arrivals = jax.vmap(episode, in_axes=(0, None))(
+            jax.random.split(key, episodes), params
+        )
         return failed.mean(), arrivals.mean()
 
     rows = []
@@ -135,11 +158,20 @@ def traffic_junction(probs: list[float], episodes: int, seeds: list[int]) -> dic
         runs = [run(jax.random.key(seed), env.default_params.replace(p_arrive=p)) for seed in seeds]
         f = [float(r[0]) for r in runs]
         a = [float(r[1]) for r in runs]
-        rows.append({
-            "p_arrive": p, "failure_rate": round(sum(f) / len(f), 4), "mean_arrivals": round(sum(a) / len(a), 2),
-            "failure_rate_by_seed": [round(v, 4) for v in f],
-        })
-    return {"episodes_per_seed": episodes, "seeds": seeds, "paper_D_failure": PAPER_TJ_FAILURE, "rows": rows}
+        rows.append(
+            {
+                "p_arrive": p,
+                "failure_rate": round(sum(f) / len(f), 4),
+                "mean_arrivals": round(sum(a) / len(a), 2),
+                "failure_rate_by_seed": [round(v, 4) for v in f],
+            }
+        )
+    return {
+        "episodes_per_seed": episodes,
+        "seeds": seeds,
+        "paper_D_failure": PAPER_TJ_FAILURE,
+        "rows": rows,
+    }
 
 
 def main() -> None:
@@ -148,7 +180,9 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=1000, help="start states per cell (combat)")
     ap.add_argument("--seed", type=int, default=None, help="check: 2026; sweep: 1000")
     ap.add_argument("--seeds", default="0", help="tj: episode seeds, comma-separated (pooled)")
-    ap.add_argument("--rules", default="112:1:110", help="sweep: C:K:R,... (radius R, centres C + K(A+B) apart)")
+    ap.add_argument(
+        "--rules", default="112:1:110", help="sweep: C:K:R,... (radius R, centres C + K(A+B) apart)"
+    )
     ap.add_argument("--p-arrive", default="0.1,0.105,0.11", help="tj: arrival probabilities")
     ap.add_argument("--episodes", type=int, default=2000, help="tj: episodes per probability")
     args = ap.parse_args()

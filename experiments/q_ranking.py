@@ -51,14 +51,25 @@ def _spearman(x: np.ndarray, y: np.ndarray) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
     ap.add_argument("--run-dir", required=True)
-    ap.add_argument("--checkpoint", default=None, help="episode count or name (default: the newest)")
+    ap.add_argument(
+        "--checkpoint", default=None, help="episode count or name (default: the newest)"
+    )
     ap.add_argument("--weights", default="auto", choices=["auto", "average", "last"])
     ap.add_argument("--games", type=int, default=64, help="games of D the states are sampled from")
-    ap.add_argument("--every", type=int, default=4, help="sample every this many steps of each game")
+    ap.add_argument(
+        "--every", type=int, default=4, help="sample every this many steps of each game"
+    )
     ap.add_argument("--max-steps", type=int, default=200, help="steps of D played per game")
-    ap.add_argument("--gamma", type=float, default=0.995, help="discount of the exact values (paper, Section 5.1)")
+    ap.add_argument(
+        "--gamma",
+        type=float,
+        default=0.995,
+        help="discount of the exact values (paper, Section 5.1)",
+    )
     ap.add_argument("--chunk", type=int, default=32, help="states per exact-value batch")
-    ap.add_argument("--seed", type=int, default=3, help="start states (3: none of eval's 0-2 or the protocol's)")
+    ap.add_argument(
+        "--seed", type=int, default=3, help="start states (3: none of eval's 0-2 or the protocol's)"
+    )
     args = ap.parse_args()
 
     t0 = time.time()
@@ -107,7 +118,14 @@ def main() -> None:
     def zero_value(s):
         return jnp.zeros(jax.tree.leaves(s)[0].shape[0])
 
-    q_fn = make_q_fn(task.lookahead, zero_value, args.gamma, steps=1_000_000, step_fn=step_fn, policy_fn=continuation)
+    q_fn = make_q_fn(
+        task.lookahead,
+        zero_value,
+        args.gamma,
+        steps=1_000_000,
+        step_fn=step_fn,
+        policy_fn=continuation,
+    )
     n_agents, n_actions = task.num_agents, task.num_actions
 
     @jax.jit
@@ -120,19 +138,34 @@ def main() -> None:
         actions = jnp.arange(n_actions, dtype=jnp.int32)
 
         def for_agent(i):
-            cand = jnp.broadcast_to(a0[:, None, :], (b, n_actions, n_agents)).at[:, :, i].set(actions[None, :])
+            cand = (
+                jnp.broadcast_to(a0[:, None, :], (b, n_actions, n_agents))
+                .at[:, :, i]
+                .set(actions[None, :])
+            )
             return q_fn(keys, s, cand)  # [b, A]
 
         q = jax.lax.map(for_agent, jnp.arange(n_agents))  # [N, b, A]
         return a0, legal, obs, jnp.transpose(q, (1, 0, 2))
 
-    out_net = jax.jit(lambda obs: nets.apply_eval(policy.module, policy.variables, obs.reshape((-1, obs.shape[-1]))).reshape(obs.shape[:-1] + (-1,)))
+    out_net = jax.jit(
+        lambda obs: nets.apply_eval(
+            policy.module, policy.variables, obs.reshape((-1, obs.shape[-1]))
+        ).reshape(obs.shape[:-1] + (-1,))
+    )
 
-    counts = {"decisions": 0, "demo_optimal": 0, "improvable": 0, "learner_is_demo": 0, "learner_better": 0,
-              "learner_worse": 0, "learner_optimal": 0}
+    counts = {
+        "decisions": 0,
+        "demo_optimal": 0,
+        "improvable": 0,
+        "learner_is_demo": 0,
+        "learner_better": 0,
+        "learner_worse": 0,
+        "learner_optimal": 0,
+    }
     regret_learner, regret_demo, rhos = [], [], []
     for start in range(0, m, args.chunk):
-        s = jax.tree.map(lambda x, start=start: jnp.asarray(x[start:start + args.chunk]), pool)
+        s = jax.tree.map(lambda x, start=start: jnp.asarray(x[start : start + args.chunk]), pool)
         a0, legal, obs, q = (np.asarray(x) for x in exact_values(jax.random.fold_in(key, start), s))
         scores = np.asarray(out_net(jnp.asarray(obs)))
         for g, i in zip(*np.nonzero(legal.sum(-1) >= 2), strict=True):
@@ -154,14 +187,26 @@ def main() -> None:
                 rhos.append(_spearman(scores[g, i][ok], q[g, i][ok]))
 
     n = max(counts["decisions"], 1)
-    print(json.dumps({
-        "run_dir": args.run_dir, "checkpoint": args.checkpoint, "weights": policy.weights, "algo": policy.config.get("algo"),
-        "scenario": policy.spec.scenario, "demonstrator": policy.demonstrator, "states": m, "decisions": counts["decisions"],
-        **{k: round(v / n, 4) for k, v in counts.items() if k != "decisions"},
-        "regret_learner": round(float(np.mean(regret_learner)), 5), "regret_demo": round(float(np.mean(regret_demo)), 5),
-        "spearman": round(float(np.mean(rhos)), 4) if rhos else None, "spearman_decisions": len(rhos),
-        "seconds": round(time.time() - t0, 1),
-    }))
+    print(
+        json.dumps(
+            {
+                "run_dir": args.run_dir,
+                "checkpoint": args.checkpoint,
+                "weights": policy.weights,
+                "algo": policy.config.get("algo"),
+                "scenario": policy.spec.scenario,
+                "demonstrator": policy.demonstrator,
+                "states": m,
+                "decisions": counts["decisions"],
+                **{k: round(v / n, 4) for k, v in counts.items() if k != "decisions"},
+                "regret_learner": round(float(np.mean(regret_learner)), 5),
+                "regret_demo": round(float(np.mean(regret_demo)), 5),
+                "spearman": round(float(np.mean(rhos)), 4) if rhos else None,
+                "spearman_decisions": len(rhos),
+                "seconds": round(time.time() - t0, 1),
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

@@ -12,10 +12,16 @@ PACKAGE = Path(hybridmarl.__file__).parent
 
 #: Top-level module or subpackage of hybridmarl -> its layer (docs/architecture.md#layers).
 LAYERS = {
-    "errors": 0, "io": 0, "validate": 0, "options": 0,
-    "engine": 1, "settings": 1,
-    "envs": 2, "search": 2,
-    "training": 3, "viewer": 3,
+    "errors": 0,
+    "io": 0,
+    "validate": 0,
+    "options": 0,
+    "engine": 1,
+    "settings": 1,
+    "envs": 2,
+    "search": 2,
+    "training": 3,
+    "viewer": 3,
     "algos": 4,
     "reproduce": 5,
     "cli": 6,

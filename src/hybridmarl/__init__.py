@@ -38,7 +38,9 @@ def train(config: Any) -> TrainResult:
     return module_for_config(config).train(config)
 
 
-def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, weights: str = "auto") -> Policy:
+def load_policy(
+    run_dir: str | Path, checkpoint: str | int | None = None, weights: str = "auto"
+) -> Policy:
     """The trained policy of a run directory: its newest checkpoint, or 'checkpoint' (an
     episode count, a checkpoint name, or 'best'); 'weights' = 'auto' (the run's policy),
     'average' or 'last'. 'Policy.predict(obs, legal)' plays it."""

@@ -30,4 +30,11 @@ class Interrupted(RuntimeError):
     says how to resume)."""
 
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_DIVERGED", "EXIT_INTERRUPTED", "Interrupted", "TrainingDiverged", "UserError"]
+__all__ = [
+    "EXIT_BAD_INPUT",
+    "EXIT_DIVERGED",
+    "EXIT_INTERRUPTED",
+    "Interrupted",
+    "TrainingDiverged",
+    "UserError",
+]

@@ -83,7 +83,9 @@ def write_text_atomic(path: str | Path, text: str) -> None:
 # -- checked reads of user files ------------------------------------------------------------------
 
 
-def check_user_file(path: str | Path, what: str, error: type[UserError] = UserError, *, max_bytes: int | None = None) -> Path:
+def check_user_file(
+    path: str | Path, what: str, error: type[UserError] = UserError, *, max_bytes: int | None = None
+) -> Path:
     """``path`` as a Path if it names a readable regular file of at most ``max_bytes`` (default
     :data:`MAX_USER_FILE_BYTES`); else ``error`` naming ``what`` (e.g. "states file") and the
     problem."""
@@ -99,11 +101,15 @@ def check_user_file(path: str | Path, what: str, error: type[UserError] = UserEr
         raise error(f"{what} {str(p)!r}: permission denied")
     size = p.stat().st_size
     if size > limit:
-        raise error(f"{what} {str(p)!r} is {size / 2**20:.0f} MiB (at most {limit // 2**20} MiB): not a {what}")
+        raise error(
+            f"{what} {str(p)!r} is {size / 2**20:.0f} MiB (at most {limit // 2**20} MiB): not a {what}"
+        )
     return p
 
 
-def check_output_path(path: str | Path, option: str = "--out", error: type[UserError] = UserError) -> Path:
+def check_output_path(
+    path: str | Path, option: str = "--out", error: type[UserError] = UserError
+) -> Path:
     """``path`` as a Path if a file can be written there (checked before any work, so a bad
     ``--out`` fails at once, not after the work it would have saved)."""
     p = Path(path)
@@ -143,14 +149,18 @@ def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a JSON number")
 
 
-def read_user_json(path: str | Path, what: str, error: type[UserError] = UserError, *, top: type = dict) -> Any:
+def read_user_json(
+    path: str | Path, what: str, error: type[UserError] = UserError, *, top: type = dict
+) -> Any:
     """A user JSON file whose top level is a ``top`` (``dict`` or ``list``); ``NaN`` and
     ``Infinity``, which Python's json accepts but JSON does not, are refused."""
     text = read_user_text(path, what, error)
     try:
         doc = json.loads(text, parse_constant=_no_constant)
     except json.JSONDecodeError as e:
-        raise error(f"{what} {str(path)!r}: malformed JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
+        raise error(
+            f"{what} {str(path)!r}: malformed JSON at line {e.lineno} column {e.colno}: {e.msg}"
+        ) from None
     except (ValueError, RecursionError) as e:
         raise error(f"{what} {str(path)!r}: {str(e) or 'nested too deeply'}") from None
     if not isinstance(doc, top):
@@ -160,7 +170,13 @@ def read_user_json(path: str | Path, what: str, error: type[UserError] = UserErr
 
 
 def _json_type(v: Any) -> str:
-    return {dict: "an object", list: "a list", str: "a string", bool: "a boolean", type(None): "null"}.get(type(v), "a number")
+    return {
+        dict: "an object",
+        list: "a list",
+        str: "a string",
+        bool: "a boolean",
+        type(None): "null",
+    }.get(type(v), "a number")
 
 
 # -- pytrees <-> named arrays ---------------------------------------------------------------------
@@ -187,7 +203,9 @@ def flatten_named(tree: Any, prefix: str = "") -> dict[str, np.ndarray]:
     return out
 
 
-def unflatten_named(template: Any, arrays: dict[str, np.ndarray], prefix: str = "", *, batch_dims: int = 0) -> Any:
+def unflatten_named(
+    template: Any, arrays: dict[str, np.ndarray], prefix: str = "", *, batch_dims: int = 0
+) -> Any:
     """Rebuild a pytree shaped like ``template`` from :func:`flatten_named` output.
 
     ``batch_dims`` leading axes are allowed in the arrays on top of the template's leaf shapes.
@@ -215,6 +233,16 @@ def unflatten_named(template: Any, arrays: dict[str, np.ndarray], prefix: str = 
 
 
 __all__ = [
-    "MAX_ARRAY_FILE_BYTES", "MAX_USER_FILE_BYTES", "atomic_write", "check_output_path", "check_user_file", "flatten_named", "read_user_bytes", "read_user_json",
-    "read_user_text", "unflatten_named", "write_json_atomic", "write_text_atomic",
+    "MAX_ARRAY_FILE_BYTES",
+    "MAX_USER_FILE_BYTES",
+    "atomic_write",
+    "check_output_path",
+    "check_user_file",
+    "flatten_named",
+    "read_user_bytes",
+    "read_user_json",
+    "read_user_text",
+    "unflatten_named",
+    "write_json_atomic",
+    "write_text_atomic",
 ]

@@ -72,7 +72,10 @@ class Setting:
         from hybridmarl.engine.state import make_rules
 
         return make_rules(
-            walkable, stalemate_limit=self.stalemate_limit, overkill=self.overkill, max_turns=max_turns
+            walkable,
+            stalemate_limit=self.stalemate_limit,
+            overkill=self.overkill,
+            max_turns=max_turns,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -145,8 +148,11 @@ def check_options(
     s = get_setting(setting)
     if s.name == DEFAULT_SETTING:
         return s
-    given = (("overkill", overkill, s.overkill), ("stalemate-limit", stalemate_limit, s.stalemate_limit),
-             ("p-arrive", p_arrive, s.p_arrive))
+    given = (
+        ("overkill", overkill, s.overkill),
+        ("stalemate-limit", stalemate_limit, s.stalemate_limit),
+        ("p-arrive", p_arrive, s.p_arrive),
+    )
     for flag, value, own in given:
         if value is not None and value != own:
             raise SettingError(

@@ -43,7 +43,12 @@ def int_at_least(low: int) -> Rule:
 
 def number_in(low: float, high: float, *, high_open: bool = False) -> Rule:
     def rule(v: Any) -> str | None:
-        ok = _is_number(v) and math.isfinite(v) and low <= v and (v < high if high_open else v <= high)
+        ok = (
+            _is_number(v)
+            and math.isfinite(v)
+            and low <= v
+            and (v < high if high_open else v <= high)
+        )
         return None if ok else f"a number in [{low:g}, {high:g}{')' if high_open else ']'}"
 
     return rule
@@ -52,7 +57,11 @@ def number_in(low: float, high: float, *, high_open: bool = False) -> Rule:
 def finite(*, low: float | None = None, strict: bool = False) -> Rule:
     def rule(v: Any) -> str | None:
         if not (_is_number(v) and math.isfinite(v)):
-            return "a finite number" if low is None else f"a finite number {'>' if strict else '>='} {low:g}"
+            return (
+                "a finite number"
+                if low is None
+                else f"a finite number {'>' if strict else '>='} {low:g}"
+            )
         if low is not None and (v <= low if strict else v < low):
             return f"a number {'>' if strict else '>='} {low:g}"
         return None
@@ -96,17 +105,40 @@ FIELD_RULES: dict[str, Rule] = {
     **{
         name: COUNT
         for name in (
-            "actor_steps", "batch_size", "bc_batch_size", "bc_steps", "brd_iterations", "brd_work_batch", "buffer_size",
-            "checkpoint_every", "chunk_steps", "critic_batch_size", "critic_pretrain_steps", "critic_update_steps",
-            "demo_observations", "e_update", "eval_episodes", "keep_checkpoints", "max_turns", "n_step", "num_envs",
-            "target_update_every", "total_episodes", "train_every", "updates_per_call",
+            "actor_steps",
+            "batch_size",
+            "bc_batch_size",
+            "bc_steps",
+            "brd_iterations",
+            "brd_work_batch",
+            "buffer_size",
+            "checkpoint_every",
+            "chunk_steps",
+            "critic_batch_size",
+            "critic_pretrain_steps",
+            "critic_update_steps",
+            "demo_observations",
+            "e_update",
+            "eval_episodes",
+            "keep_checkpoints",
+            "max_turns",
+            "n_step",
+            "num_envs",
+            "target_update_every",
+            "total_episodes",
+            "train_every",
+            "updates_per_call",
         )
     },
     # 0 means "off" or "none"
     **{
         name: COUNT_OR_ZERO
         for name in (
-            "eval_every", "lookahead_steps", "eps_decay_episodes", "agreement_decay_episodes", "pretrain_samples",
+            "eval_every",
+            "lookahead_steps",
+            "eps_decay_episodes",
+            "agreement_decay_episodes",
+            "pretrain_samples",
             "pretrain_updates",
         )
     },
@@ -119,7 +151,16 @@ FIELD_RULES: dict[str, Rule] = {
     **{name: POSITIVE for name in ("lr", "actor_lr", "critic_lr")},
     **{
         name: NON_NEGATIVE
-        for name in ("lambda_l2", "lambda_margin", "lambda_nstep", "margin", "agreement_bonus", "per_eps_agent", "per_eps_demo", "time_limit_min")
+        for name in (
+            "lambda_l2",
+            "lambda_margin",
+            "lambda_nstep",
+            "margin",
+            "agreement_bonus",
+            "per_eps_agent",
+            "per_eps_demo",
+            "time_limit_min",
+        )
     },
     "lambda_margin_online": optional(NON_NEGATIVE),
     "actor_hidden": layer_sizes,
@@ -144,8 +185,11 @@ def option_name(field: str) -> str:
 
 
 def check_values(
-    values: Mapping[str, Any], rules: Mapping[str, Rule] | None = None, *,
-    label: Callable[[str], str] = option_name, error: type[UserError] = UserError,
+    values: Mapping[str, Any],
+    rules: Mapping[str, Rule] | None = None,
+    *,
+    label: Callable[[str], str] = option_name,
+    error: type[UserError] = UserError,
 ) -> None:
     """Check every ``name: value`` against its rule (``rules``, else :func:`rule_for`); the first
     one that breaks its rule raises ``error``: "<label(name)> must be <rule>, got <value>"."""
@@ -156,14 +200,35 @@ def check_values(
             raise error(f"{label(name)} must be {problem}, got {value!r}")
 
 
-def check_config(cfg: Any, *, label: Callable[[str], str] = option_name, error: type[UserError] = UserError) -> None:
+def check_config(
+    cfg: Any, *, label: Callable[[str], str] = option_name, error: type[UserError] = UserError
+) -> None:
     """Check every field of a learner's config (``TrainConfig``: flat field names) or of a
     command's own config dataclass."""
-    names: Iterable[str] = cfg.field_names() if hasattr(cfg, "field_names") else [f.name for f in dataclasses.fields(cfg)]
+    names: Iterable[str] = (
+        cfg.field_names()
+        if hasattr(cfg, "field_names")
+        else [f.name for f in dataclasses.fields(cfg)]
+    )
     check_values({n: getattr(cfg, n) for n in names}, label=label, error=error)
 
 
 __all__ = [
-    "COUNT", "COUNT_OR_ZERO", "DISCOUNT", "FIELD_RULES", "NON_NEGATIVE", "POSITIVE", "PROBABILITY", "SEED", "check_config",
-    "check_values", "finite", "int_at_least", "int_in", "number_in", "option_name", "optional", "rule_for",
+    "COUNT",
+    "COUNT_OR_ZERO",
+    "DISCOUNT",
+    "FIELD_RULES",
+    "NON_NEGATIVE",
+    "POSITIVE",
+    "PROBABILITY",
+    "SEED",
+    "check_config",
+    "check_values",
+    "finite",
+    "int_at_least",
+    "int_in",
+    "number_in",
+    "option_name",
+    "optional",
+    "rule_for",
 ]

@@ -31,7 +31,11 @@ def _brute_q(w, joint):
 
 
 def _run(w, a0, legal, iterations=7, work_batch=None):
-    fn = jax.jit(lambda k, s, a, lg: best_response_dynamics(_pairwise_q(w), k, s, a, lg, iterations, work_batch=work_batch))
+    fn = jax.jit(
+        lambda k, s, a, lg: best_response_dynamics(
+            _pairwise_q(w), k, s, a, lg, iterations, work_batch=work_batch
+        )
+    )
     return fn(jax.random.split(jax.random.key(0), B), jnp.asarray(w), a0, legal)
 
 
@@ -93,9 +97,17 @@ def test_work_batch_does_not_change_the_result_and_skips_finished_games():
     for wb in (1, 2, 3):
         res = _run(w, a0, legal, work_batch=wb)
         for f in ("actions", "q_valid", "changes", "evaluated", "sweeps"):
-            np.testing.assert_array_equal(np.asarray(getattr(res, f)), np.asarray(getattr(ref, f)), err_msg=f)
+            np.testing.assert_array_equal(
+                np.asarray(getattr(res, f)), np.asarray(getattr(ref, f)), err_msg=f
+            )
         for f in ("q", "q_final", "q_init"):  # the einsum rounds differently at another batch size
-            np.testing.assert_allclose(np.asarray(getattr(res, f)), np.asarray(getattr(ref, f)), rtol=1e-5, atol=1e-5, err_msg=f)
+            np.testing.assert_allclose(
+                np.asarray(getattr(res, f)),
+                np.asarray(getattr(ref, f)),
+                rtol=1e-5,
+                atol=1e-5,
+                err_msg=f,
+            )
         assert int(res.visits) >= int(ref.visits)
         # Only legal candidates of the games that need a visit are simulated (padding included).
         assert int(res.simulated) < int(ref.simulated)
@@ -121,8 +133,12 @@ def test_compact_schedule_simulates_only_legal_candidates(work_batch):
         jax.debug.callback(lambda s, c: seen.append((np.asarray(s), np.asarray(c))), states, cand)
         return toy_q(keys, states, cand)
 
-    fn = jax.jit(lambda k, s, a, lg: best_response_dynamics(q_fn, k, s, a, lg, 7, work_batch=work_batch))
-    res = fn(jax.random.split(jax.random.key(0), B), jnp.asarray(w), jnp.zeros((B, N), jnp.int32), legal)
+    fn = jax.jit(
+        lambda k, s, a, lg: best_response_dynamics(q_fn, k, s, a, lg, 7, work_batch=work_batch)
+    )
+    res = fn(
+        jax.random.split(jax.random.key(0), B), jnp.asarray(w), jnp.zeros((B, N), jnp.int32), legal
+    )
     jax.block_until_ready(res)
     assert len(seen) == int(res.visits) > 0
     rows = 0
@@ -176,7 +192,9 @@ def test_brd_on_traffic_junction_with_a_critic():
             _, s2, _, _, _ = task.step(k, s, gas(k, s))
             return s2, None
 
-        states = jax.vmap(lambda k: jax.lax.scan(warm, task.reset(k)[1], jax.random.split(k, 12))[0])(keys)
+        states = jax.vmap(
+            lambda k: jax.lax.scan(warm, task.reset(k)[1], jax.random.split(k, 12))[0]
+        )(keys)
         legal = jax.vmap(task.avail)(states)
         a0 = jax.vmap(gas)(keys, states)
         return best_response_dynamics(q_fn, keys, states, a0, legal, 7), legal
@@ -206,14 +224,24 @@ def test_lookahead_continuation_is_the_chosen_policy():
     assert continuation_policy(cfg.replace(lookahead_policy="demonstrator")) == "demonstrator"
     learner = build_learner(task, cfg, "attack-closest")
     actor = nets.init_net(learner.actor_mod, jax.random.key(1), task.obs_dim, learner.actor_tx)
-    critic = nets.init_net(learner.critic_mod, jax.random.key(2), task.critic_dim, learner.critic_tx)
+    critic = nets.init_net(
+        learner.critic_mod, jax.random.key(2), task.critic_dim, learner.critic_tx
+    )
     cv = {"params": critic.params, "batch_stats": critic.batch_stats}
     pool = new_pool(task, jax.random.key(3), 2)
     legal = np.asarray(jax.vmap(task.avail)(pool.states))
-    cand = jnp.asarray(np.stack([legal.argmax(-1), legal.shape[-1] - 1 - legal[..., ::-1].argmax(-1)], 1))  # [B, 2, N]
+    cand = jnp.asarray(
+        np.stack([legal.argmax(-1), legal.shape[-1] - 1 - legal[..., ::-1].argmax(-1)], 1)
+    )  # [B, 2, N]
     keys = jax.random.split(jax.random.key(4), 2)
     gamma, k_steps = 0.9, 3
-    q = np.asarray(jax.jit(learner.brd_q_fn(actor, cv, None, gamma=gamma, lookahead=k_steps, continuation="demonstrator"))(keys, pool.states, cand))
+    q = np.asarray(
+        jax.jit(
+            learner.brd_q_fn(
+                actor, cv, None, gamma=gamma, lookahead=k_steps, continuation="demonstrator"
+            )
+        )(keys, pool.states, cand)
+    )
 
     @jax.jit
     def manual(key, state, acts):
@@ -229,5 +257,7 @@ def test_lookahead_continuation_is_the_chosen_policy():
 
     for g in range(2):
         for k in range(2):
-            expected = float(manual(keys[g], jax.tree.map(lambda x, g=g: x[g], pool.states), cand[g, k]))
+            expected = float(
+                manual(keys[g], jax.tree.map(lambda x, g=g: x[g], pool.states), cand[g, k])
+            )
             np.testing.assert_allclose(q[g, k], expected, rtol=1e-5, atol=1e-6)

@@ -22,7 +22,9 @@ from .test_brd import _pairwise_q, _toy
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_host_sweep_equals_jit_sweep(seed):
     w, legal = _toy(seed)
-    a0 = jnp.zeros(legal.shape[:2], jnp.int32).at[1, 2].set(0)  # game 1 starts from an illegal action
+    a0 = (
+        jnp.zeros(legal.shape[:2], jnp.int32).at[1, 2].set(0)
+    )  # game 1 starts from an illegal action
     ref = jax.jit(lambda k, s, a, lg: best_response_dynamics(_pairwise_q(w), k, s, a, lg, 7))(
         jax.random.split(jax.random.key(0), w.shape[0]), jnp.asarray(w), a0, legal
     )
@@ -55,11 +57,19 @@ def midgame():
     avail = jax.jit(jax.vmap(task.avail))
     for t in range(5):
         legal = np.asarray(avail(states))
-        acts = np.array([[rng.choice(np.flatnonzero(lg)) for lg in game] for game in legal], np.int32)
+        acts = np.array(
+            [[rng.choice(np.flatnonzero(lg)) for lg in game] for game in legal], np.int32
+        )
         _, states, _, _, _ = step(jax.random.split(jax.random.key(t), b), states, jnp.asarray(acts))
     legal = np.asarray(avail(states))
     na = legal.shape[-1]
-    cand = np.array([[[rng.choice(np.flatnonzero(lg)) for lg in legal[g]] for _ in range(na)] for g in range(b)], np.int32)
+    cand = np.array(
+        [
+            [[rng.choice(np.flatnonzero(lg)) for lg in legal[g]] for _ in range(na)]
+            for g in range(b)
+        ],
+        np.int32,
+    )
     cand[:, 0, 0] = na - 1  # often illegal: the env's fallback must match
     return cfg, task, states, legal, cand
 
@@ -68,7 +78,9 @@ def test_env_step_equals_combat_step(midgame):
     _, task, states, _, cand = midgame
     b = cand.shape[0]
     acts = cand[:, 0]
-    _, s2, r, d, _ = jax.vmap(task.step)(jax.random.split(jax.random.key(0), b), states, jnp.asarray(acts))
+    _, s2, r, d, _ = jax.vmap(task.step)(
+        jax.random.split(jax.random.key(0), b), states, jnp.asarray(acts)
+    )
     env = task.env
     batch = state_arrays(jax.device_get(states))
     fields = batch["fields"]
@@ -80,9 +92,27 @@ def test_env_step_equals_combat_step(midgame):
     for g in range(b):
         f = [a[g] for a in fields]
         reward, done = env_step(
-            g, *f, batch["time"], batch["turn"], batch["stale"], batch["prev_hp_sum"], walk, acts[g].astype(np.int64),
-            env.num_agents, env.num_actions, SCRIPT_CODES[env.enemy_name], rules.overkill == "pass", rules.stalemate_limit,
-            rules.max_turns, batch["init_hp0"][g], 0, g, make_workspace(n), np.zeros(n, np.int64), np.zeros(n, np.int64), False,
+            g,
+            *f,
+            batch["time"],
+            batch["turn"],
+            batch["stale"],
+            batch["prev_hp_sum"],
+            walk,
+            acts[g].astype(np.int64),
+            env.num_agents,
+            env.num_actions,
+            SCRIPT_CODES[env.enemy_name],
+            rules.overkill == "pass",
+            rules.stalemate_limit,
+            rules.max_turns,
+            batch["init_hp0"][g],
+            0,
+            g,
+            make_workspace(n),
+            np.zeros(n, np.int64),
+            np.zeros(n, np.int64),
+            False,
         )
         assert reward == float(r[g]) and done == bool(d[g]), g
     names = ("utype", "uid", "x", "y", "px", "py", "t_act", "last", "hp", "t_move", "t_attack")
@@ -104,12 +134,22 @@ def test_simulated_returns_equal_jax(midgame, steps):
         return r, s2, d
 
     q_fn = make_q_fn(
-        task.lookahead, lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]), cfg.gamma, steps=steps,
-        policy_fn=lambda keys, s: jax.vmap(demo)(keys, s).astype(jnp.int32), batch_step_fn=batch_step,
+        task.lookahead,
+        lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]),
+        cfg.gamma,
+        steps=steps,
+        policy_fn=lambda keys, s: jax.vmap(demo)(keys, s).astype(jnp.int32),
+        batch_step_fn=batch_step,
     )
-    ref = np.asarray(jax.jit(q_fn)(jax.random.split(jax.random.key(1), b), states, jnp.asarray(cand)))
-    sim = BN.NativeBRD(task, gamma=cfg.gamma, iterations=7, lookahead=steps, continuation="attack-closest")
-    ret, _, _, _ = sim.simulate(state_arrays(jax.device_get(states)), np.repeat(np.arange(b), na), cand.reshape(b * na, n))
+    ref = np.asarray(
+        jax.jit(q_fn)(jax.random.split(jax.random.key(1), b), states, jnp.asarray(cand))
+    )
+    sim = BN.NativeBRD(
+        task, gamma=cfg.gamma, iterations=7, lookahead=steps, continuation="attack-closest"
+    )
+    ret, _, _, _ = sim.simulate(
+        state_arrays(jax.device_get(states)), np.repeat(np.arange(b), na), cand.reshape(b * na, n)
+    )
     np.testing.assert_array_equal(ret.reshape(b, na), ref)
 
 
@@ -125,11 +165,17 @@ def test_critic_features_and_mlp(midgame):
         critic_features(batch["time"][g], *f[2:], env.num_agents, env.num_enemies, scratch, got[g])
     np.testing.assert_allclose(got, ref, atol=1e-6)
     module = nets.critic_module(cfg.critic_hidden)
-    net = nets.init_net(module, jax.random.key(3), task.critic_dim, nets.make_optimizer("adam", 1e-3))
-    stats = jax.tree.map(lambda x: x + 0.3 * jax.random.uniform(jax.random.key(4), x.shape), net.batch_stats)
+    net = nets.init_net(
+        module, jax.random.key(3), task.critic_dim, nets.make_optimizer("adam", 1e-3)
+    )
+    stats = jax.tree.map(
+        lambda x: x + 0.3 * jax.random.uniform(jax.random.key(4), x.shape), net.batch_stats
+    )
     variables = {"params": net.params, "batch_stats": stats}
     want = np.asarray(nets.apply_eval(module, variables, jnp.asarray(ref)))
-    np.testing.assert_allclose(BN.NativeMLP(jax.device_get(variables))(ref), want, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(
+        BN.NativeMLP(jax.device_get(variables))(ref), want, rtol=1e-4, atol=1e-5
+    )
 
 
 def test_native_chunk_is_deterministic():
@@ -137,12 +183,19 @@ def test_native_chunk_is_deterministic():
     from hybridmarl.algos.hybrid.train import _vars
     from hybridmarl.training.rollout import new_pool
 
-    cfg = PRESETS["toy"]("combat").replace(engine="native", lookahead_steps=3, lookahead_policy="demonstrator", brd_start="demonstrator")
+    cfg = PRESETS["toy"]("combat").replace(
+        engine="native",
+        lookahead_steps=3,
+        lookahead_policy="demonstrator",
+        brd_start="demonstrator",
+    )
     task = make_task(cfg.task_spec())
     learner = build_learner(task, cfg, "attack-closest")
     assert learner.engine == "native"
     actor = nets.init_net(learner.actor_mod, jax.random.key(0), task.obs_dim, learner.actor_tx)
-    critic = nets.init_net(learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx)
+    critic = nets.init_net(
+        learner.critic_mod, jax.random.key(1), task.critic_dim, learner.critic_tx
+    )
     pool = new_pool(task, jax.random.key(2), cfg.num_envs)
     runs = [learner.train_chunk(pool, actor, _vars(critic), None) for _ in range(2)]
     for a, b in zip(jax.tree.leaves(runs[0]), jax.tree.leaves(runs[1]), strict=True):
@@ -152,21 +205,34 @@ def test_native_chunk_is_deterministic():
     assert np.all(np.isfinite(out["aux"]["actor_loss"]))
     # The actor's learning-rate factor (actor_lr_decay_from): 1 is the unscaled step exactly,
     # 0 leaves the parameters where they were (batch-norm statistics and Adam's moments move).
-    for a, b in zip(jax.tree.leaves(learner.train_chunk(pool, actor, _vars(critic), None, np.float32(1.0))), jax.tree.leaves(runs[0]), strict=True):
+    for a, b in zip(
+        jax.tree.leaves(learner.train_chunk(pool, actor, _vars(critic), None, np.float32(1.0))),
+        jax.tree.leaves(runs[0]),
+        strict=True,
+    ):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     frozen = learner.train_chunk(pool, actor, _vars(critic), None, np.float32(0.0))[1]
     for a, b in zip(jax.tree.leaves(frozen.params), jax.tree.leaves(actor.params), strict=True):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    assert not all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(frozen.params), jax.tree.leaves(runs[0][1].params), strict=True))
+    assert not all(
+        np.array_equal(a, b)
+        for a, b in zip(
+            jax.tree.leaves(frozen.params), jax.tree.leaves(runs[0][1].params), strict=True
+        )
+    )
 
 
 def test_native_engine_refused_where_it_does_not_apply():
     from hybridmarl.algos.hybrid.learner import resolve_brd_engine
 
-    cfg = PRESETS["toy"]("combat").replace(engine="native", lookahead_steps=3, lookahead_policy="actor")
+    cfg = PRESETS["toy"]("combat").replace(
+        engine="native", lookahead_steps=3, lookahead_policy="actor"
+    )
     with pytest.raises(ValueError, match="native"):
         resolve_brd_engine(make_task(cfg.task_spec()), cfg, "attack-closest")
-    engine, note = resolve_brd_engine(make_task(cfg.task_spec()), cfg.replace(engine="auto"), "attack-closest")
+    engine, note = resolve_brd_engine(
+        make_task(cfg.task_spec()), cfg.replace(engine="auto"), "attack-closest"
+    )
     assert engine == "jax" and "continuation" in note
 
 
@@ -197,8 +263,12 @@ def test_each_env_step_kernel_is_compiled_once(midgame):
 
     cfg, task, states, _, cand = midgame
     b, na, n = cand.shape
-    sim = BN.NativeBRD(task, gamma=cfg.gamma, iterations=7, lookahead=2, continuation="attack-closest")
-    sim.simulate(state_arrays(jax.device_get(states)), np.repeat(np.arange(b), na), cand.reshape(b * na, n))
+    sim = BN.NativeBRD(
+        task, gamma=cfg.gamma, iterations=7, lookahead=2, continuation="attack-closest"
+    )
+    sim.simulate(
+        state_arrays(jax.device_get(states)), np.repeat(np.arange(b), na), cand.reshape(b * na, n)
+    )
 
     def callees_of(caller, sig, parallel=False):
         if not caller._cache_misses[sig]:  # loaded, not compiled, in this process
@@ -209,7 +279,9 @@ def test_each_env_step_kernel_is_compiled_once(midgame):
         return callee.signatures[0]
 
     callees_of(BN.simulate_candidates, one(BN.simulate_candidates), parallel=True)
-    callees_of(BN._simulate_chunk, one(BN._simulate_chunk))  # the first env step, then the look-ahead's
+    callees_of(
+        BN._simulate_chunk, one(BN._simulate_chunk)
+    )  # the first env step, then the look-ahead's
     step_sig = one(CN.env_step)
     one(CN.script_env_actions)
     callees_of(CN.env_step, step_sig)

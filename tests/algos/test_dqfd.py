@@ -43,6 +43,7 @@ def _latest(run_dir: Path) -> Path:
     assert path is not None, f"no checkpoint in {run_dir}"
     return path
 
+
 # -- losses ------------------------------------------------------------------------------------------
 
 
@@ -70,7 +71,9 @@ def test_huber_and_l2_by_hand():
     # |x| <= 1: x^2 / 2 -> 0.125; |x| > 1: |x| - 1/2 -> 1.5
     np.testing.assert_allclose(huber(jnp.asarray([0.5, -2.0])), [0.125, 1.5])
     # 1 + 4 + 9 = 14
-    assert float(l2_penalty({"a": jnp.asarray([1.0, 2.0]), "b": jnp.asarray([[3.0]])})) == pytest.approx(14.0)
+    assert float(
+        l2_penalty({"a": jnp.asarray([1.0, 2.0]), "b": jnp.asarray([[3.0]])})
+    ) == pytest.approx(14.0)
 
 
 def test_reward_unit_and_the_scaled_losses_by_hand():
@@ -95,15 +98,21 @@ def test_reward_unit_and_the_scaled_losses_by_hand():
     # satisfies it), and a TD error of one shot has gradient 1, the margin loss's own size.
     q_units = q_raw / 0.03
     np.testing.assert_allclose(large_margin_loss(q_units, a_e, legal, 0.8), [0.0], atol=1e-6)
-    np.testing.assert_allclose(large_margin_loss(q_units, jnp.asarray([1]), legal, 0.8), [1.0 + 0.8 - 0.0], atol=1e-5)
+    np.testing.assert_allclose(
+        large_margin_loss(q_units, jnp.asarray([1]), legal, 0.8), [1.0 + 0.8 - 0.0], atol=1e-5
+    )
     np.testing.assert_allclose(jax.grad(lambda x: huber(x))(1.0), 1.0)
 
 
 def test_linear_decay_and_greedy_agreement_by_hand():
-    assert [linear_decay(1.0, e, 100) for e in (0, 25, 100, 300)] == pytest.approx([1.0, 0.75, 0.0, 0.0])
+    assert [linear_decay(1.0, e, 100) for e in (0, 25, 100, 300)] == pytest.approx(
+        [1.0, 0.75, 0.0, 0.0]
+    )
     assert linear_decay(0.5, 10_000, 0) == 0.5
     q = jnp.asarray([[1.0, 3.0, 2.0], [5.0, 1.0, 0.0], [0.0, 0.0, 9.0], [1.0, 1.0, 0.0]])
-    legal = jnp.asarray([[True, False, True], [True, True, True], [True, True, False], [True, True, True]])
+    legal = jnp.asarray(
+        [[True, False, True], [True, True, True], [True, True, False], [True, True, True]]
+    )
     expert = jnp.asarray([2, 0, 0, 1])
     choice = jnp.asarray([True, True, False, True])
     # Row 0: legal greedy is 2 (action 1 is illegal) = expert; row 1: 0 = expert; row 2 has no
@@ -128,7 +137,9 @@ def test_nstep_returns_by_hand():
     np.testing.assert_allclose(ret[:2, 1], [1.5, 1.0])
     np.testing.assert_allclose(disc[:2, 1], [0.0, 0.0])
     # A segment cut short (a dataset's last episode, not ended): bootstrap from its last row.
-    ret, disc, last = nstep_returns(np.asarray([[1.0], [1.0]]), np.zeros((2, 1), bool), np.asarray([7, 7]), 0.5, 3)
+    ret, disc, last = nstep_returns(
+        np.asarray([[1.0], [1.0]]), np.zeros((2, 1), bool), np.asarray([7, 7]), 0.5, 3
+    )
     # t0 = 1 + .5*1 = 1.5 over 2 steps -> disc .25, bootstrap after row 1; t1 = 1, disc .5
     np.testing.assert_allclose(ret[:, 0], [1.5, 1.0])
     np.testing.assert_allclose(disc[:, 0], [0.25, 0.5])
@@ -195,10 +206,19 @@ def test_per_sampling_proportions_weights_and_protected_demos():
 
 def _state(hp, last, steps, init_hp=(70, 44)) -> CombatState:
     # Ids interleave: ours slot 0 = id 0, enemy slot 0 = id 1, ours slot 1 = id 2, enemy slot 1 = id 3.
-    units = [UnitSpec("Terran_Marine", 0, 100, 100), UnitSpec("Terran_Marine", 1, 150, 100),
-             UnitSpec("Terran_Marine", 0, 100, 120), UnitSpec("Terran_Marine", 1, 150, 120)]
+    units = [
+        UnitSpec("Terran_Marine", 0, 100, 100),
+        UnitSpec("Terran_Marine", 1, 150, 100),
+        UnitSpec("Terran_Marine", 0, 100, 120),
+        UnitSpec("Terran_Marine", 1, 150, 120),
+    ]
     game = dataclasses.replace(build_state(units, 2), hp=jnp.asarray(hp, jnp.int32))
-    return CombatState(game=game, last_actions=jnp.asarray(last, jnp.int32), init_hp=jnp.asarray(init_hp, jnp.int32), steps=jnp.asarray(steps, jnp.int32))
+    return CombatState(
+        game=game,
+        last_actions=jnp.asarray(last, jnp.int32),
+        init_hp=jnp.asarray(init_hp, jnp.int32),
+        steps=jnp.asarray(steps, jnp.int32),
+    )
 
 
 def test_per_agent_rewards_by_hand():
@@ -226,20 +246,41 @@ def test_per_agent_rewards_by_hand():
 
 # -- smoke runs through the CLI ---------------------------------------------------------------------------
 
-TOY = ["--preset", "toy", "--no-progress", "--scenario", "m3v3", "--demonstrator", "attack-closest", "--enemy", "attack-weakest"]
+TOY = [
+    "--preset",
+    "toy",
+    "--no-progress",
+    "--scenario",
+    "m3v3",
+    "--demonstrator",
+    "attack-closest",
+    "--enemy",
+    "attack-weakest",
+]
 
 
 def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     run = tmp_path / "dqfd"
     assert main(["train", "--algo", "dqfd", *TOY, "--run-dir", str(run)]) == 0
     out = capsys.readouterr().out
-    assert "64 demonstration records" in out and "pre-trained on demonstrations: 8 updates" in out and "eval vs attack-weakest" in out
+    assert (
+        "64 demonstration records" in out
+        and "pre-trained on demonstrations: 8 updates" in out
+        and "eval vs attack-weakest" in out
+    )
     for f in ("config.json", "train.csv", "episodes.csv", "eval.json"):
         assert (run / f).is_file(), f
     assert json.loads((run / "eval.json").read_text())["n"] == 8
     with open(run / "train.csv") as f:
         rows = list(csv.DictReader(f))
-    assert rows[0]["episodes"] == "0" and {"loss", "margin_loss", "nstep_loss", "won_100", "epsilon", "updates"} <= set(rows[0])
+    assert rows[0]["episodes"] == "0" and {
+        "loss",
+        "margin_loss",
+        "nstep_loss",
+        "won_100",
+        "epsilon",
+        "updates",
+    } <= set(rows[0])
     arrays, meta = load_checkpoint(_latest(run))
     assert meta["phase"] == "online" and meta["episodes"] >= 4 and meta["updates"] > 8
     buf = subtree(arrays, "buffer")
@@ -258,11 +299,28 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     # demonstration rewards; one Marine shot at m3v3 is 6 HP of the 120 allied HP).
     unit = meta["reward_unit"]
     assert unit == pytest.approx(6 / 120, rel=0.02)
-    np.testing.assert_allclose(buf["reward"][live].sum(1) * unit - np.where(ended, n * terminal, 0.0), env_r, atol=1e-5)
+    np.testing.assert_allclose(
+        buf["reward"][live].sum(1) * unit - np.where(ended, n * terminal, 0.0), env_r, atol=1e-5
+    )
     assert env_r.min() < 0 or env_r.max() > 0  # some damage happened
     # --resume continues the same run to a larger budget.
     first = meta
-    assert main(["train", "--algo", "dqfd", "--run-dir", str(run), "--resume", "--total-episodes", "8", "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--algo",
+                "dqfd",
+                "--run-dir",
+                str(run),
+                "--resume",
+                "--total-episodes",
+                "8",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     assert "resumed" in capsys.readouterr().out
     _, meta = load_checkpoint(_latest(run))
     assert meta["episodes"] >= 8
@@ -273,7 +331,25 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     # agreement bonus (constant 0.5 here) every stage-2 agent reward is the per-agent damage
     # reward plus 0.5 per agent that played the script's action.
     og = tmp_path / "ogtl"
-    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(og), "--agreement-bonus", "0.5", "--eval-every", "2", "--lambda-margin-final", "0"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--algo",
+                "ogtl",
+                *TOY,
+                "--run-dir",
+                str(og),
+                "--agreement-bonus",
+                "0.5",
+                "--eval-every",
+                "2",
+                "--lambda-margin-final",
+                "0",
+            ]
+        )
+        == 0
+    )
     assert "best checkpoint (episode " in capsys.readouterr().out
     # --eval-every kept the best periodically evaluated Q-network; eval --checkpoint best plays it.
     best = json.loads((og / "eval.json").read_text())["best"]
@@ -286,7 +362,11 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     buf = subtree(arrays, "buffer")
     assert not buf["valid"][:64].any()
     cfg = json.loads((og / "config.json").read_text())
-    assert cfg["algo"] == "ogtl" and cfg["config"]["keep_demos"] is False and cfg["config"]["margin_decay_episodes"] == 2
+    assert (
+        cfg["algo"] == "ogtl"
+        and cfg["config"]["keep_demos"] is False
+        and cfg["config"]["margin_decay_episodes"] == 2
+    )
     assert cfg["config"]["agreement_bonus"] == 0.5
     size = int(buf["counters"][4])
     live = demo_cap + np.arange(size)
@@ -295,7 +375,11 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     env_r = ((hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) - (hp[:, 0].sum(-1) - hp[:, 1].sum(-1))) / h0
     terminal = (hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) / h0
     ended = buf["disc1"][live].max(axis=1) == 0
-    agreeing = (buf["reward"][live].sum(1) * meta["reward_unit"] - np.where(ended, n * terminal, 0.0) - env_r) / 0.5
+    agreeing = (
+        buf["reward"][live].sum(1) * meta["reward_unit"]
+        - np.where(ended, n * terminal, 0.0)
+        - env_r
+    ) / 0.5
     np.testing.assert_allclose(agreeing, np.round(agreeing), atol=1e-4)
     assert agreeing.min() > -1e-4 and agreeing.max() <= n + 1e-4 and agreeing.max() >= 1
     with open(og / "train.csv") as f:
@@ -303,14 +387,21 @@ def test_dqfd_and_ogtl_train_resume_and_eval_m3v3(tmp_path, capsys):
     for d in (run, og):
         assert main(["eval", "--run-dir", str(d), "--n", "8", "--json"]) == 0
         res = _one_json(capsys.readouterr().out)
-        assert res["n"] == 8 and res["scenario"] == "m3v3" and res["enemy"] == "attack-weakest" and 0.0 <= res["W"] <= 1.0
+        assert (
+            res["n"] == 8
+            and res["scenario"] == "m3v3"
+            and res["enemy"] == "attack-weakest"
+            and 0.0 <= res["W"] <= 1.0
+        )
 
 
 def test_ogtl_agreement_schedule_decays_linearly_and_is_off_by_default():
     from hybridmarl.algos import ogtl
 
     assert ogtl.agreement_schedule(ogtl.OGTLConfig()) is None
-    w = ogtl.agreement_schedule(ogtl.OGTLConfig().replace(agreement_bonus=0.2, agreement_decay_episodes=100))
+    w = ogtl.agreement_schedule(
+        ogtl.OGTLConfig().replace(agreement_bonus=0.2, agreement_decay_episodes=100)
+    )
     assert w is not None
     assert [w(0), w(50), w(100), w(500)] == pytest.approx([0.2, 0.1, 0.0, 0.0])
     const = ogtl.agreement_schedule(ogtl.OGTLConfig().replace(agreement_bonus=0.2))
@@ -323,7 +414,23 @@ def test_ogtl_leaves_imitation_without_unlearning_it_m3v3(tmp_path, capsys):
     # train.csv 'agreement' column (greedy action = demonstrator's, on the fixed probe of
     # demonstration states) is in [0, 1] on every row and does not fall at the switch.
     run = tmp_path / "ogtl"
-    assert main(["train", "--algo", "ogtl", *TOY, "--run-dir", str(run), "--pretrain-updates", "200", "--total-episodes", "8"]) == 0
+    assert (
+        main(
+            [
+                "train",
+                "--algo",
+                "ogtl",
+                *TOY,
+                "--run-dir",
+                str(run),
+                "--pretrain-updates",
+                "200",
+                "--total-episodes",
+                "8",
+            ]
+        )
+        == 0
+    )
     capsys.readouterr()
     with open(run / "train.csv") as f:
         rows = list(csv.DictReader(f))
@@ -350,5 +457,7 @@ def test_dqfd_team_reward_gives_every_agent_the_global_reward_m3v3(tmp_path, cap
     env_r = ((hp2[:, 0].sum(-1) - hp2[:, 1].sum(-1)) - (hp[:, 0].sum(-1) - hp[:, 1].sum(-1))) / h0
     valid = buf["valid"][live]
     got = buf["reward"][live] * meta["reward_unit"]
-    np.testing.assert_allclose(got[valid], np.broadcast_to(env_r[:, None], got.shape)[valid], atol=1e-5)
+    np.testing.assert_allclose(
+        got[valid], np.broadcast_to(env_r[:, None], got.shape)[valid], atol=1e-5
+    )
     assert np.abs(env_r).max() > 0  # some damage happened

@@ -24,14 +24,25 @@ from hybridmarl.cli.main import main
 
 # -- the valid originals ---------------------------------------------------------------------------
 
-STATES = {"states": [{"units": [
-    {"type": "Terran_Marine", "player": 0, "x": 500, "y": 350},
-    {"type": "Terran_Marine", "player": 1, "x": 700, "y": 350},
-]}]}
+STATES = {
+    "states": [
+        {
+            "units": [
+                {"type": "Terran_Marine", "player": 0, "x": 500, "y": 350},
+                {"type": "Terran_Marine", "player": 1, "x": 700, "y": 350},
+            ]
+        }
+    ]
+}
 SCENARIO = {
-    "name": "zd", "kind": "disks", "player0": [{"type": "Protoss_Zealot", "count": 2}],
-    "player1": [{"type": "Protoss_Dragoon", "count": 2}], "center0": [565, 352], "center1": [715, 352],
-    "radius0": 100, "radius1": 100,
+    "name": "zd",
+    "kind": "disks",
+    "player0": [{"type": "Protoss_Zealot", "count": 2}],
+    "player1": [{"type": "Protoss_Dragoon", "count": 2}],
+    "center0": [565, 352],
+    "center1": [715, 352],
+    "radius0": 100,
+    "radius1": 100,
 }
 MAP = "4\n3\n1111\n1111\n1111\n"
 
@@ -47,7 +58,11 @@ def _config_doc(cfg: Any) -> dict[str, Any]:
 
     return {
         "algo": "hybrid",
-        "config": {**config_to_dict(cfg), "demonstrator_name": "attack-closest", "eval_enemy_name": "attack-weakest"},
+        "config": {
+            **config_to_dict(cfg),
+            "demonstrator_name": "attack-closest",
+            "eval_enemy_name": "attack-weakest",
+        },
         "task": cfg.task_spec().to_dict(),
     }
 
@@ -72,13 +87,25 @@ def _dataset_arrays() -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     k, n, a, d = 3, 2, 4, 5
     legal = np.ones((k, n, a), bool)
     arrays = {
-        "obs": np.zeros((k, n, d), np.float32), "legal": legal, "actions": np.zeros((k, n), np.int32),
-        "active": np.ones((k, n), bool), "episode": np.zeros(k, np.int32), "t": np.arange(k, dtype=np.int32),
-        "reward": np.zeros(k, np.float32), "return": np.zeros(k, np.float32), "state.x": np.zeros((k, 2), np.float32),
+        "obs": np.zeros((k, n, d), np.float32),
+        "legal": legal,
+        "actions": np.zeros((k, n), np.int32),
+        "active": np.ones((k, n), bool),
+        "episode": np.zeros(k, np.int32),
+        "t": np.arange(k, dtype=np.int32),
+        "reward": np.zeros(k, np.float32),
+        "return": np.zeros(k, np.float32),
+        "state.x": np.zeros((k, 2), np.float32),
     }
     meta = {
-        "format": "hybridmarl-demos", "version": 1, "task": {"env": "combat", "scenario": "m2v2"}, "num_agents": n,
-        "num_actions": a, "obs_dim": d, "demonstrator": "attack-closest", "seed": 0,
+        "format": "hybridmarl-demos",
+        "version": 1,
+        "task": {"env": "combat", "scenario": "m2v2"},
+        "num_agents": n,
+        "num_actions": a,
+        "obs_dim": d,
+        "demonstrator": "attack-closest",
+        "seed": 0,
     }
     return arrays, meta
 
@@ -87,7 +114,11 @@ def _write_dataset(path: Path, arrays: dict[str, np.ndarray], meta: Any) -> None
     from safetensors.numpy import save_file
 
     header = meta if isinstance(meta, str) else json.dumps(meta)
-    save_file({k: np.ascontiguousarray(v) for k, v in arrays.items()}, str(path), metadata={"hybridmarl": header})
+    save_file(
+        {k: np.ascontiguousarray(v) for k, v in arrays.items()},
+        str(path),
+        metadata={"hybridmarl": header},
+    )
 
 
 @dataclass(frozen=True)
@@ -110,7 +141,13 @@ def make_base(root: Path) -> Base:
     run.mkdir()
     (run / "config.json").write_text(json.dumps(doc))
     actor = _actor_arrays(cfg)
-    meta = {"episodes": 8, "phase": "joint", "algo": "hybrid", "config": doc["config"], "task": doc["task"]}
+    meta = {
+        "episodes": 8,
+        "phase": "joint",
+        "algo": "hybrid",
+        "config": doc["config"],
+        "task": doc["task"],
+    }
     save_checkpoint(run, 8, actor, meta)
     (run / "train.csv").write_text("episodes,loss\n4,0.5\n8,0.25\n")
     load_policy(run)  # the originals are valid: every failure below comes from the damage
@@ -130,7 +167,9 @@ BYTES: dict[str, Callable[[bytes], bytes]] = {
     "whitespace only": lambda b: b" \n\t\n",
     "truncated to half": lambda b: b[: len(b) // 2],
     "truncated to one byte": lambda b: b[:1],
-    "binary garbage": lambda b: bytes(np.random.default_rng(0).integers(0, 256, 512, dtype=np.uint8)),
+    "binary garbage": lambda b: bytes(
+        np.random.default_rng(0).integers(0, 256, 512, dtype=np.uint8)
+    ),
     "binary with NUL inside": lambda b: b[:10] + b"\0\0" + b[10:],
     "not UTF-8": lambda b: b"\xff\xfe\xfa" + b,
     "JSON list": lambda b: b"[1, 2, 3]",
@@ -149,7 +188,13 @@ class Case:
     write: Callable[[Path, Base], list[str]]  # (case dir, base) -> argv
 
 
-def _json_cases(loader: str, name: str, original: Any, argv: Callable[[Path], list[str]], mutations: dict[str, Callable[[Any], Any]]) -> list[Case]:
+def _json_cases(
+    loader: str,
+    name: str,
+    original: Any,
+    argv: Callable[[Path], list[str]],
+    mutations: dict[str, Callable[[Any], Any]],
+) -> list[Case]:
     """Byte damage, a directory in place of the file, and structural ``mutations`` of a JSON file."""
     cases = []
 
@@ -194,7 +239,14 @@ def _set(path: str, value: Any) -> Callable[[Any], Any]:
 
 
 DELETE = object()
-WRONG = {"a list": [1, 2], "a string": "x", "null": None, "NaN": float("nan"), "a boolean": True, "an object": {"a": 1}}
+WRONG = {
+    "a list": [1, 2],
+    "a string": "x",
+    "null": None,
+    "NaN": float("nan"),
+    "a boolean": True,
+    "an object": {"a": 1},
+}
 
 
 def _states_cases() -> list[Case]:
@@ -217,8 +269,16 @@ def _states_cases() -> list[Case]:
         **{f"type is {w}": _set(f"{u}.type", v) for w, v in WRONG.items() if w != "a string"},
         **{f"player is {w}": _set(f"{u}.player", v) for w, v in WRONG.items()},
     }
-    battle = _json_cases("states file (battle)", "states.json", STATES, lambda p: ["battle", "--states", str(p), "--no-progress"], mutations)
-    trace = _json_cases("states file (trace)", "states.json", STATES, lambda p: ["trace", "--states", str(p)], {})
+    battle = _json_cases(
+        "states file (battle)",
+        "states.json",
+        STATES,
+        lambda p: ["battle", "--states", str(p), "--no-progress"],
+        mutations,
+    )
+    trace = _json_cases(
+        "states file (trace)", "states.json", STATES, lambda p: ["trace", "--states", str(p)], {}
+    )
     return battle + trace
 
 
@@ -246,7 +306,13 @@ def _scenario_cases() -> list[Case]:
         **{f"player0 is {w}": _set("player0", v) for w, v in WRONG.items()},
         "name a list": _set("name", [1]),
     }
-    return _json_cases("scenario file", "scenario.json", SCENARIO, lambda p: ["battle", "--scenario-file", str(p), "--n", "2", "--no-progress"], mutations)
+    return _json_cases(
+        "scenario file",
+        "scenario.json",
+        SCENARIO,
+        lambda p: ["battle", "--scenario-file", str(p), "--n", "2", "--no-progress"],
+        mutations,
+    )
 
 
 def _map_cases() -> list[Case]:
@@ -269,7 +335,16 @@ def _map_cases() -> list[Case]:
                 p.mkdir()
             else:
                 p.write_bytes(data)
-            return ["battle", "--map-file", str(p), "--scenario", "m1v1", "--n", "2", "--no-progress"]
+            return [
+                "battle",
+                "--map-file",
+                str(p),
+                "--scenario",
+                "m1v1",
+                "--n",
+                "2",
+                "--no-progress",
+            ]
 
         return write
 
@@ -315,8 +390,12 @@ def _config_cases() -> list[Case]:
     cases = []
     for via, argv in (
         ("eval", lambda run: ["eval", "--run-dir", str(run), "--n", "2"]),
-        ("train --resume", lambda run: ["train", "--run-dir", str(run), "--resume", "--no-progress"]),
+        (
+            "train --resume",
+            lambda run: ["train", "--run-dir", str(run), "--resume", "--no-progress"],
+        ),
     ):
+
         def put(data: bytes | None, argv=argv):
             def write(d: Path, base: Base) -> list[str]:
                 run = _run_copy(d, base)
@@ -336,14 +415,29 @@ def _config_cases() -> list[Case]:
             return json.dumps(base.config).encode()
 
         for label, damage in BYTES.items():
-            cases.append(Case(loader, label, _lazy(put, lambda base, damage=damage: damage(original(base)))))
+            cases.append(
+                Case(loader, label, _lazy(put, lambda base, damage=damage: damage(original(base))))
+            )
         cases.append(Case(loader, "a directory", put(None)))
         for label, mutate in mutations.items():
-            cases.append(Case(loader, label, _lazy(put, lambda base, mutate=mutate: json.dumps(mutate(json.loads(original(base)))).encode())))
+            cases.append(
+                Case(
+                    loader,
+                    label,
+                    _lazy(
+                        put,
+                        lambda base, mutate=mutate: json.dumps(
+                            mutate(json.loads(original(base)))
+                        ).encode(),
+                    ),
+                )
+            )
     return cases
 
 
-def _lazy(put: Callable[[bytes | None], Callable[[Path, Base], list[str]]], data: Callable[[Base], bytes]) -> Callable[[Path, Base], list[str]]:
+def _lazy(
+    put: Callable[[bytes | None], Callable[[Path, Base], list[str]]], data: Callable[[Base], bytes]
+) -> Callable[[Path, Base], list[str]]:
     """A writer whose bytes depend on the valid originals (known only once the fixture ran)."""
 
     def write(d: Path, base: Base) -> list[str]:
@@ -374,12 +468,30 @@ def _checkpoint_cases() -> list[Case]:
         return json.dumps({**base.meta, "format_version": 1, "step": 8}).encode()
 
     for label, damage in BYTES.items():
-        cases.append(Case("checkpoint meta.json", label, put_meta(lambda base, damage=damage: damage(meta_bytes(base)))))
+        cases.append(
+            Case(
+                "checkpoint meta.json",
+                label,
+                put_meta(lambda base, damage=damage: damage(meta_bytes(base))),
+            )
+        )
     cases.append(Case("checkpoint meta.json", "a directory", put_meta(lambda base: None)))
-    for label, version in (("format version 2", 2), ("format version missing", DELETE), ("format version a string", "1")):
-        cases.append(Case("checkpoint meta.json", label, put_meta(
-            lambda base, version=version: json.dumps(_set("format_version", version)({**base.meta, "format_version": 1})).encode()
-        )))
+    for label, version in (
+        ("format version 2", 2),
+        ("format version missing", DELETE),
+        ("format version a string", "1"),
+    ):
+        cases.append(
+            Case(
+                "checkpoint meta.json",
+                label,
+                put_meta(
+                    lambda base, version=version: json.dumps(
+                        _set("format_version", version)({**base.meta, "format_version": 1})
+                    ).encode()
+                ),
+            )
+        )
 
     def put_arrays(make: Callable[[Base], dict[str, np.ndarray] | bytes | None]):
         def write(d: Path, base: Base) -> list[str]:
@@ -405,10 +517,18 @@ def _checkpoint_cases() -> list[Case]:
         return save(base.actor)
 
     for label, damage in BYTES.items():
-        cases.append(Case("checkpoint arrays", label, put_arrays(lambda base, damage=damage: damage(original(base)))))
+        cases.append(
+            Case(
+                "checkpoint arrays",
+                label,
+                put_arrays(lambda base, damage=damage: damage(original(base))),
+            )
+        )
     cases.append(Case("checkpoint arrays", "a directory", put_arrays(lambda base: None)))
 
-    def edit(fn: Callable[[dict[str, np.ndarray]], None]) -> Callable[[Base], dict[str, np.ndarray]]:
+    def edit(
+        fn: Callable[[dict[str, np.ndarray]], None],
+    ) -> Callable[[Base], dict[str, np.ndarray]]:
         def make(base: Base) -> dict[str, np.ndarray]:
             arrays = {k: v.copy() for k, v in base.actor.items()}
             fn(arrays)
@@ -425,7 +545,9 @@ def _checkpoint_cases() -> list[Case]:
         "int dtype": lambda a: a.__setitem__(kernel, a[kernel].astype(np.int32)),
         "NaN weights": lambda a: a[kernel].__setitem__((0, 0), np.nan),
         "inf weights": lambda a: a[kernel].__setitem__((0, 0), np.inf),
-        "weights of another network": lambda a: a.__setitem__(kernel, np.zeros((a[kernel].shape[0], 7), np.float32)),
+        "weights of another network": lambda a: a.__setitem__(
+            kernel, np.zeros((a[kernel].shape[0], 7), np.float32)
+        ),
     }
     for label, fn in structural.items():
         cases.append(Case("checkpoint arrays", label, put_arrays(edit(fn))))
@@ -469,7 +591,9 @@ def _dataset_cases() -> list[Case]:
         return save(arrays, metadata={"hybridmarl": json.dumps(meta)})
 
     for label, damage in BYTES.items():
-        cases.append(Case("demonstration dataset", label, put(lambda damage=damage: damage(original()))))
+        cases.append(
+            Case("demonstration dataset", label, put(lambda damage=damage: damage(original())))
+        )
     cases.append(Case("demonstration dataset", "a directory", put(lambda: None)))
     structural: dict[str, Callable[[dict[str, np.ndarray], dict[str, Any]], Any]] = {
         "metadata not JSON": lambda a, m: Header("{not json"),
@@ -522,8 +646,17 @@ def _csv_cases() -> list[Case]:
     return cases
 
 
-CASES = _states_cases() + _scenario_cases() + _map_cases() + _config_cases() + _checkpoint_cases() + _dataset_cases() + _csv_cases()
+CASES = (
+    _states_cases()
+    + _scenario_cases()
+    + _map_cases()
+    + _config_cases()
+    + _checkpoint_cases()
+    + _dataset_cases()
+    + _csv_cases()
+)
 if os.geteuid() != 0:  # root reads any file: an unreadable file cannot be made for it
+
     def _unreadable(d: Path, base: Base) -> list[str]:
         p = d / "states.json"
         p.write_text(json.dumps(STATES))
@@ -544,8 +677,17 @@ def run_case(case: Case, d: Path, base: Base, capsys: Any) -> tuple[int, list[st
 def test_at_least_200_cases_over_every_loader():
     loaders = {c.loader for c in CASES}
     assert len(CASES) >= 200, len(CASES)
-    assert {"states file (battle)", "scenario file", "map file", "run config.json (eval)", "run config.json (train --resume)",
-            "checkpoint meta.json", "checkpoint arrays", "demonstration dataset", "run log train.csv"} <= loaders
+    assert {
+        "states file (battle)",
+        "scenario file",
+        "map file",
+        "run config.json (eval)",
+        "run config.json (train --resume)",
+        "checkpoint meta.json",
+        "checkpoint arrays",
+        "demonstration dataset",
+        "run log train.csv",
+    } <= loaders
 
 
 @pytest.mark.parametrize("case", CASES, ids=[f"{c.loader}: {c.damage}" for c in CASES])
@@ -555,8 +697,18 @@ def test_bad_file_is_one_line_exit_2(case: Case, base: Base, tmp_path: Path, cap
     assert len(err) == 1 and err[0].startswith("hybridmarl: error: "), err
     assert "Traceback" not in out + "\n".join(err)
     # The line names the file (or, for a run, its directory or checkpoint).
-    named = {"states.json", "scenario.json", "walk.map", "config.json", "ckpt_000000008", "meta.json", "arrays.safetensors",
-             "demos.safetensors", "train.csv", str(tmp_path)}
+    named = {
+        "states.json",
+        "scenario.json",
+        "walk.map",
+        "config.json",
+        "ckpt_000000008",
+        "meta.json",
+        "arrays.safetensors",
+        "demos.safetensors",
+        "train.csv",
+        str(tmp_path),
+    }
     assert any(n in err[0] for n in named), err
 
 
@@ -629,19 +781,78 @@ def _unreadable_cases() -> list[tuple[str, str, Callable[[Path, Base], list[str]
         return ["demos", "info", str(d / "demos.safetensors")]
 
     return [
-        ("states file (battle)", "states.json", plain("states.json", lambda: json.dumps(STATES).encode(), lambda p: ["battle", "--states", str(p), "--no-progress"])),
-        ("scenario file", "scenario.json", plain("scenario.json", lambda: json.dumps(SCENARIO).encode(), lambda p: ["battle", "--scenario-file", str(p), "--n", "2", "--no-progress"])),
-        ("map file", "walk.map", plain("walk.map", MAP.encode, lambda p: ["battle", "--map-file", str(p), "--scenario", "m1v1", "--n", "2", "--no-progress"])),
-        ("run config.json (eval)", "config.json", in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"])),
-        ("checkpoint meta.json", "meta.json", in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"])),
-        ("checkpoint arrays", "arrays.safetensors", in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"])),
+        (
+            "states file (battle)",
+            "states.json",
+            plain(
+                "states.json",
+                lambda: json.dumps(STATES).encode(),
+                lambda p: ["battle", "--states", str(p), "--no-progress"],
+            ),
+        ),
+        (
+            "scenario file",
+            "scenario.json",
+            plain(
+                "scenario.json",
+                lambda: json.dumps(SCENARIO).encode(),
+                lambda p: ["battle", "--scenario-file", str(p), "--n", "2", "--no-progress"],
+            ),
+        ),
+        (
+            "map file",
+            "walk.map",
+            plain(
+                "walk.map",
+                MAP.encode,
+                lambda p: [
+                    "battle",
+                    "--map-file",
+                    str(p),
+                    "--scenario",
+                    "m1v1",
+                    "--n",
+                    "2",
+                    "--no-progress",
+                ],
+            ),
+        ),
+        (
+            "run config.json (eval)",
+            "config.json",
+            in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"]),
+        ),
+        (
+            "checkpoint meta.json",
+            "meta.json",
+            in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"]),
+        ),
+        (
+            "checkpoint arrays",
+            "arrays.safetensors",
+            in_run(lambda r: ["eval", "--run-dir", str(r), "--n", "2"]),
+        ),
         ("demonstration dataset", "demos.safetensors", dataset),
-        ("run log train.csv", "train.csv", in_run(lambda r: ["train", "--run-dir", str(r), "--resume", "--no-progress"])),
+        (
+            "run log train.csv",
+            "train.csv",
+            in_run(lambda r: ["train", "--run-dir", str(r), "--resume", "--no-progress"]),
+        ),
     ]
 
 
-@pytest.mark.parametrize("loader,name,write", _unreadable_cases(), ids=[c[0] for c in _unreadable_cases()])
-def test_unreadable_file_is_one_line_exit_2(loader: str, name: str, write: Callable[[Path, Base], list[str]], base: Base, tmp_path: Path, capsys: Any, monkeypatch: pytest.MonkeyPatch):
+@pytest.mark.parametrize(
+    "loader,name,write", _unreadable_cases(), ids=[c[0] for c in _unreadable_cases()]
+)
+def test_unreadable_file_is_one_line_exit_2(
+    loader: str,
+    name: str,
+    write: Callable[[Path, Base], list[str]],
+    base: Base,
+    tmp_path: Path,
+    capsys: Any,
+    monkeypatch: pytest.MonkeyPatch,
+):
     import hybridmarl.io as hio
 
     real_access = os.access

@@ -20,7 +20,24 @@ def _write(tmp_path, name, obj):
 
 def test_battle_scenario_smoke(tmp_path, capsys):
     out = tmp_path / "res.json"
-    rc = main(["battle", "--scenario", "m3v3", "--p0", "attack-closest", "--p1", "attack-weakest", "--n", "6", "--seed", "1", "--out", str(out), "--no-progress"])
+    rc = main(
+        [
+            "battle",
+            "--scenario",
+            "m3v3",
+            "--p0",
+            "attack-closest",
+            "--p1",
+            "attack-weakest",
+            "--n",
+            "6",
+            "--seed",
+            "1",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     text = capsys.readouterr().out
     assert "P0 wins" in text and "attack-closest" in text
@@ -39,7 +56,21 @@ def test_battle_engines_agree(tmp_path, scenario):
     docs = {}
     for engine in ("native", "jax"):
         out = tmp_path / f"{engine}.json"
-        argv = ["battle", "--scenario", scenario, "--n", "40", "--seed", "3", "--swap", "--engine", engine, "--out", str(out), "--no-progress"]
+        argv = [
+            "battle",
+            "--scenario",
+            scenario,
+            "--n",
+            "40",
+            "--seed",
+            "3",
+            "--swap",
+            "--engine",
+            engine,
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
         assert main(argv) == 0
         docs[engine] = json.loads(out.read_text())
     assert docs["native"] == docs["jax"]
@@ -57,7 +88,20 @@ def test_battle_states_file_matches_reference(tmp_path):
     states = json.loads((TRACE_DIR / "trace_states.json").read_text())
     out = tmp_path / "res.json"
     f = _write(tmp_path, "states.json", states)
-    rc = main(["battle", "--states", str(f), "--p0", "attack-closest", "--p1", "attack-weakest", "--out", str(out), "--no-progress"])
+    rc = main(
+        [
+            "battle",
+            "--states",
+            str(f),
+            "--p0",
+            "attack-closest",
+            "--p1",
+            "attack-weakest",
+            "--out",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     doc = json.loads(out.read_text())
     # trace_3v3_state0_AttackClosest_vs_AttackWeakest: P0 wins at frame 151 after 60 turns.
@@ -67,11 +111,44 @@ def test_battle_states_file_matches_reference(tmp_path):
 
 
 BAD = [
-    ({"states": [{"units": [{"type": "Terran_Batman", "player": 0, "x": 1, "y": 1}, {"type": "Terran_Marine", "player": 1, "x": 5, "y": 5}]}]}, "unknown unit type"),
-    ({"states": [{"units": [{"type": "Terran_Marine", "player": 0, "x": 5000, "y": 1}, {"type": "Terran_Marine", "player": 1, "x": 5, "y": 5}]}]}, "off the map"),
-    ({"states": [{"units": [{"type": "Terran_Marine", "player": 0, "x": 5, "y": 1}]}]}, "player 1 has no units"),
-    ({"states": [{"units": [{"type": "Terran_Marine", "player": 2, "x": 5, "y": 1}]}]}, "player must be 0 or 1"),
-    ({"states": [{"units": [{"type": "Terran_Marine", "player": 0, "x": 1.5, "y": 1}]}]}, "integer pixel"),
+    (
+        {
+            "states": [
+                {
+                    "units": [
+                        {"type": "Terran_Batman", "player": 0, "x": 1, "y": 1},
+                        {"type": "Terran_Marine", "player": 1, "x": 5, "y": 5},
+                    ]
+                }
+            ]
+        },
+        "unknown unit type",
+    ),
+    (
+        {
+            "states": [
+                {
+                    "units": [
+                        {"type": "Terran_Marine", "player": 0, "x": 5000, "y": 1},
+                        {"type": "Terran_Marine", "player": 1, "x": 5, "y": 5},
+                    ]
+                }
+            ]
+        },
+        "off the map",
+    ),
+    (
+        {"states": [{"units": [{"type": "Terran_Marine", "player": 0, "x": 5, "y": 1}]}]},
+        "player 1 has no units",
+    ),
+    (
+        {"states": [{"units": [{"type": "Terran_Marine", "player": 2, "x": 5, "y": 1}]}]},
+        "player must be 0 or 1",
+    ),
+    (
+        {"states": [{"units": [{"type": "Terran_Marine", "player": 0, "x": 1.5, "y": 1}]}]},
+        "integer pixel",
+    ),
     ({"states": []}, "non-empty"),
     ({"foo": 1}, "'states' list"),
     ("{not json", "malformed JSON"),
@@ -114,31 +191,86 @@ def test_unknown_command(capsys):
 
 
 def test_trace_command(capsys):
-    rc = main(["trace", "--states", str(TRACE_DIR / "trace_states.json"), "--index", "0", "--p0", "AttackClosest", "--p1", "AttackClosest"])
+    rc = main(
+        [
+            "trace",
+            "--states",
+            str(TRACE_DIR / "trace_states.json"),
+            "--index",
+            "0",
+            "--p0",
+            "AttackClosest",
+            "--p1",
+            "AttackClosest",
+        ]
+    )
     assert rc == 0
     text = capsys.readouterr().out
     ref = (TRACE_DIR / "trace_1v1_state0_AttackClosest_vs_AttackClosest.txt").read_text()
-    ref_turns = [ln for ln in ref.splitlines() if ln.startswith(("TURN", "  ACT", "  HP", "  NEXT"))]
+    ref_turns = [
+        ln for ln in ref.splitlines() if ln.startswith(("TURN", "  ACT", "  HP", "  NEXT"))
+    ]
     ours = [ln for ln in text.splitlines() if ln.startswith(("TURN", "  ACT", "  HP", "  NEXT"))]
     assert ours == ref_turns
 
 
 def test_scenario_file(tmp_path):
-    f = _write(tmp_path, "sc.json", {"name": "zd", "player0": [{"type": "Protoss_Zealot", "count": 3}], "player1": [{"type": "Protoss_Dragoon", "count": 2}, {"type": "Terran_Marine", "count": 1}]})
+    f = _write(
+        tmp_path,
+        "sc.json",
+        {
+            "name": "zd",
+            "player0": [{"type": "Protoss_Zealot", "count": 3}],
+            "player1": [
+                {"type": "Protoss_Dragoon", "count": 2},
+                {"type": "Terran_Marine", "count": 1},
+            ],
+        },
+    )
     sc = load_scenario_file(f)
     states = sc.generate(3, 0)
     assert len(states) == 3 and sum(u.player == 1 for u in states[0]) == 3
-    bad = _write(tmp_path, "bad.json", {"player0": [{"type": "Protoss_Zealot", "count": 0}], "player1": []})
+    bad = _write(
+        tmp_path, "bad.json", {"player0": [{"type": "Protoss_Zealot", "count": 0}], "player1": []}
+    )
     with pytest.raises(InputError, match="count must be a positive integer"):
         load_scenario_file(bad)
-    bad2 = _write(tmp_path, "bad2.json", {"player0": [{"type": "Protoss_Zealot", "count": 1}], "player1": [{"type": "Protoss_Zealot", "count": 1}], "center0": [10, 10]})
+    bad2 = _write(
+        tmp_path,
+        "bad2.json",
+        {
+            "player0": [{"type": "Protoss_Zealot", "count": 1}],
+            "player1": [{"type": "Protoss_Zealot", "count": 1}],
+            "center0": [10, 10],
+        },
+    )
     with pytest.raises(InputError, match="leaves the"):
         load_scenario_file(bad2)
 
 
 def test_battle_with_scenario_file_runs(tmp_path, capsys):
-    f = _write(tmp_path, "sc.json", {"player0": [{"type": "Zerg_Zergling", "count": 3}], "player1": [{"type": "Zerg_Hydralisk", "count": 2}]})
-    rc = main(["battle", "--scenario-file", str(f), "--n", "4", "--p0", "nokdps", "--p1", "kiter-dps", "--no-progress"])
+    f = _write(
+        tmp_path,
+        "sc.json",
+        {
+            "player0": [{"type": "Zerg_Zergling", "count": 3}],
+            "player1": [{"type": "Zerg_Hydralisk", "count": 2}],
+        },
+    )
+    rc = main(
+        [
+            "battle",
+            "--scenario-file",
+            str(f),
+            "--n",
+            "4",
+            "--p0",
+            "nokdps",
+            "--p1",
+            "kiter-dps",
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     assert "nokdps" in capsys.readouterr().out
 

@@ -44,7 +44,16 @@ def test_help_lists_every_command(capsys):
     assert out.strip() == usage()
     for name, cmd in COMMANDS.items():
         assert f"  {name}" in out and cmd.help in out, name
-    assert set(COMMANDS) == {"quickstart", "battle", "trace", "replay", "train", "eval", "demos", "reproduce"}
+    assert set(COMMANDS) == {
+        "quickstart",
+        "battle",
+        "trace",
+        "replay",
+        "train",
+        "eval",
+        "demos",
+        "reproduce",
+    }
     assert main(["-h"]) == 0
     assert main([]) == EXIT_BAD_INPUT  # no command: the help, and a failing exit code
     assert "usage: hybridmarl" in capsys.readouterr().out
@@ -72,7 +81,9 @@ def test_user_error_is_one_line_exit_2(monkeypatch, capsys):
 def test_training_diverged_exit_3(monkeypatch, capsys):
     _fake(monkeypatch, "_raise_diverged")
     assert main(["fake"]) == EXIT_DIVERGED
-    assert capsys.readouterr().err.splitlines() == ["hybridmarl: training stopped: critic loss is nan at episode 12"]
+    assert capsys.readouterr().err.splitlines() == [
+        "hybridmarl: training stopped: critic loss is nan at episode 12"
+    ]
 
 
 def test_missing_extra_names_it(monkeypatch, capsys):
@@ -108,7 +119,10 @@ def test_train_defaults_and_results(monkeypatch):
     assert main(["train", "--run-dir", "runs/x", "--no-progress"]) == 0
     want = mod.PRESETS[getattr(algos, "DEFAULT_PRESET", "quick")]("combat")
     assert seen[-1] == want.replace(run_dir="runs/x", progress=False)
-    assert main(["train", "--env", "traffic_junction", "--preset", "quick", "--run-dir", "runs/tj"]) == 0
+    assert (
+        main(["train", "--env", "traffic_junction", "--preset", "quick", "--run-dir", "runs/tj"])
+        == 0
+    )
     assert seen[-1] == mod.PRESETS["quick"]("traffic_junction").replace(run_dir="runs/tj")
     monkeypatch.setattr(mod, "train", lambda cfg: _raise_diverged([]))
     assert main(["train", "--preset", "toy"]) == EXIT_DIVERGED

@@ -18,7 +18,9 @@ from hybridmarl.training.task import TaskSpec, make_task
 def _task(env: str, scenario: str | None):
     """The task of ``env``/``scenario`` (the sizes of its state and observation do not depend on
     the setting)."""
-    return make_task(TaskSpec(env=env) if scenario is None else TaskSpec(env=env, scenario=scenario))
+    return make_task(
+        TaskSpec(env=env) if scenario is None else TaskSpec(env=env, scenario=scenario)
+    )
 
 
 def _one_line_error(capsys) -> str:
@@ -30,9 +32,28 @@ def _one_line_error(capsys) -> str:
 
 def test_train_refuses_a_huge_buffer_before_any_work(tmp_path, capsys):
     run = tmp_path / "run"
-    assert main(["train", "--preset", "toy", "--scenario", "m3v3", "--buffer-size", "10000000000", "--run-dir", str(run)]) == 2
+    assert (
+        main(
+            [
+                "train",
+                "--preset",
+                "toy",
+                "--scenario",
+                "m3v3",
+                "--buffer-size",
+                "10000000000",
+                "--run-dir",
+                str(run),
+            ]
+        )
+        == 2
+    )
     line = _one_line_error(capsys)
-    assert line.startswith("hybridmarl: error: --buffer-size 10000000000:") and "GiB" in line and "--yes" in line, line
+    assert (
+        line.startswith("hybridmarl: error: --buffer-size 10000000000:")
+        and "GiB" in line
+        and "--yes" in line
+    ), line
     assert not run.exists()
 
 
@@ -47,9 +68,16 @@ def test_train_size_guard_passes_with_yes():
 
 def test_demos_collect_refuses_a_huge_n(tmp_path, capsys):
     out = tmp_path / "d.safetensors"
-    assert main(["demos", "collect", "--scenario", "m3v3", "--n", "1000000000", "--out", str(out)]) == 2
+    assert (
+        main(["demos", "collect", "--scenario", "m3v3", "--n", "1000000000", "--out", str(out)])
+        == 2
+    )
     line = _one_line_error(capsys)
-    assert line.startswith("hybridmarl: error: --n 1000000000 observations of m3v3") and "CPU time" in line and "--yes" in line, line
+    assert (
+        line.startswith("hybridmarl: error: --n 1000000000 observations of m3v3")
+        and "CPU time" in line
+        and "--yes" in line
+    ), line
     assert not out.exists()
     with pytest.raises(sizes.SizeError):
         sizes.check_demos_size(10**9, _task("combat", "m3v3"), yes=False)
@@ -58,9 +86,26 @@ def test_demos_collect_refuses_a_huge_n(tmp_path, capsys):
 
 def test_eval_refuses_a_huge_n(tmp_path, capsys):
     out = tmp_path / "e.json"
-    assert main(["eval", "--script", "attack-closest", "--scenario", "m3v3", "--n", "1000000000", "--out", str(out)]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--script",
+                "attack-closest",
+                "--scenario",
+                "m3v3",
+                "--n",
+                "1000000000",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
     line = _one_line_error(capsys)
-    assert line.startswith("hybridmarl: error: --n 1000000000 episodes of m3v3") and "--yes" in line, line
+    assert (
+        line.startswith("hybridmarl: error: --n 1000000000 episodes of m3v3") and "--yes" in line
+    ), line
     assert not out.exists()
     with pytest.raises(sizes.SizeError):
         sizes.check_eval_size(10**9, _task("combat", "m3v3"), yes=False)
@@ -71,7 +116,9 @@ def test_thresholds_sit_where_the_docs_say():
     # m5v5: 6,598 bytes a state and joint observation (528 + 5 x (4 x 301 + 10)).
     state, observation = sizes.task_sizes(_task("combat", "m5v5"))
     assert (state, observation) == (528, 6070)
-    assert sizes.CONFIRM_BYTES // sizes.demos_memory(1, state, observation) == 433_966  # demos collect --n
+    assert (
+        sizes.CONFIRM_BYTES // sizes.demos_memory(1, state, observation) == 433_966
+    )  # demos collect --n
     assert sizes.CONFIRM_BYTES // sizes.eval_memory(1, state, observation) == 433_966  # eval --n
 
 
@@ -85,8 +132,12 @@ def test_no_preset_and_no_reproduction_task_trips_a_guard():
         mod = algos.algo_module(algo)
         for make in mod.PRESETS.values():
             for scenario in scenarios:
-                sizes.check_train_size(make("combat").replace(scenario=scenario), _task("combat", scenario), yes=False)
-            sizes.check_train_size(make("traffic_junction"), _task("traffic_junction", None), yes=False)
+                sizes.check_train_size(
+                    make("combat").replace(scenario=scenario), _task("combat", scenario), yes=False
+                )
+            sizes.check_train_size(
+                make("traffic_junction"), _task("traffic_junction", None), yes=False
+            )
     checked = 0
     for budget in P.BUDGETS:
         for setting in ("sparcraft", "paper"):
@@ -96,7 +147,11 @@ def test_no_preset_and_no_reproduction_task_trips_a_guard():
                 env_task = _task(c["env"], c.get("scenario"))
                 sizes.check_eval_size(c["n"], env_task, yes=False)
                 if task.kind == "train":  # the config the harness trains (reproduce.worker)
-                    cfg = algos.algo_module(c["algo"]).PRESETS[c["preset"]](c["env"]).replace(**c["overrides"])
+                    cfg = (
+                        algos.algo_module(c["algo"])
+                        .PRESETS[c["preset"]](c["env"])
+                        .replace(**c["overrides"])
+                    )
                     sizes.check_train_size(cfg, env_task, yes=False)
                     checked += 1
     assert checked > 100

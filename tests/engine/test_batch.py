@@ -37,10 +37,16 @@ def test_small_batches_equal_one_big_batch():
 def test_pool_equals_vmap(rules):
     stacked, _ = pad_states(STATES)
     keys = jax.random.split(jax.random.PRNGKey(1), len(STATES))
-    ref = game.batched_player("random", "attack-closest", game.rules_static(rules))(keys, stacked, rules.walkable)
-    pooled = game.pooled_player("random", "attack-closest", game.rules_static(rules), 4)(keys, stacked, rules.walkable)
+    ref = game.batched_player("random", "attack-closest", game.rules_static(rules))(
+        keys, stacked, rules.walkable
+    )
+    pooled = game.pooled_player("random", "attack-closest", game.rules_static(rules), 4)(
+        keys, stacked, rules.walkable
+    )
     for f in ref._fields:
-        np.testing.assert_array_equal(np.asarray(getattr(ref, f)), np.asarray(getattr(pooled, f)), err_msg=f)
+        np.testing.assert_array_equal(
+            np.asarray(getattr(ref, f)), np.asarray(getattr(pooled, f)), err_msg=f
+        )
 
 
 def test_same_seed_same_outcomes_random_script():

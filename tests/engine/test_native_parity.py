@@ -50,7 +50,9 @@ def test_lockstep_k_turns_open_map_overkill_classic():
     rng = np.random.default_rng(1)
     rules = make_rules(overkill="classic")
     p0, p1 = P.all_pairs()
-    states = native.build_native_states(P.random_states(rng, len(p0), 12, np.asarray(rules.walkable)))
+    states = native.build_native_states(
+        P.random_states(rng, len(p0), 12, np.asarray(rules.walkable))
+    )
     P.lockstep(states, rules, p0, p1, max_turns=30)
 
 
@@ -64,7 +66,9 @@ def test_whole_games_every_pair(overkill, max_side, walls, seed):
     grid = P.random_walkable(rng) if walls else None
     rules = make_rules(grid, overkill=overkill)
     p0, p1 = P.all_pairs()
-    states = native.build_native_states(P.random_states(rng, 2 * len(p0), max_side, np.asarray(rules.walkable)))
+    states = native.build_native_states(
+        P.random_states(rng, 2 * len(p0), max_side, np.asarray(rules.walkable))
+    )
     cmp = P.compare_whole_games(states, rules, p0 * 2, p1 * 2)
     assert cmp.mismatches == 0, cmp.first_mismatch
 
@@ -117,14 +121,24 @@ def _error(fn) -> tuple[type, str]:
 
 
 def test_bad_input_same_error_as_jax_path():
-    too_many = [UnitSpec("Terran_Marine", 0, 100, 100)] * 513 + [UnitSpec("Terran_Marine", 1, 200, 100)]
-    doc = {"states": [{"units": [{"type": u.type, "player": u.player, "x": u.x, "y": u.y} for u in too_many]}]}
-    assert _error(lambda: native.run_battles([too_many], "attack-closest", "kiter", progress=False)) == _error(
-        lambda: parse_states_document(doc)
-    )
+    too_many = [UnitSpec("Terran_Marine", 0, 100, 100)] * 513 + [
+        UnitSpec("Terran_Marine", 1, 200, 100)
+    ]
+    doc = {
+        "states": [
+            {"units": [{"type": u.type, "player": u.player, "x": u.x, "y": u.y} for u in too_many]}
+        ]
+    }
+    assert _error(
+        lambda: native.run_battles([too_many], "attack-closest", "kiter", progress=False)
+    ) == _error(lambda: parse_states_document(doc))
     unknown = [UnitSpec("Zerg_Ultralisk", 0, 100, 100), UnitSpec("Terran_Marine", 1, 200, 100)]
-    doc["states"][0]["units"] = [{"type": u.type, "player": u.player, "x": u.x, "y": u.y} for u in unknown]
-    kind, message = _error(lambda: native.run_battles([unknown], "attack-closest", "kiter", progress=False))
+    doc["states"][0]["units"] = [
+        {"type": u.type, "player": u.player, "x": u.x, "y": u.y} for u in unknown
+    ]
+    kind, message = _error(
+        lambda: native.run_battles([unknown], "attack-closest", "kiter", progress=False)
+    )
     assert (kind, message) == _error(lambda: parse_states_document(doc))
     assert kind is InputError
     assert _error(lambda: native.run_battles([], "kiter", "kiter", progress=False)) == _error(
@@ -183,5 +197,7 @@ def test_generate_arrays_equals_generate(name):
 def test_run_battles_from_native_arrays_equals_unit_lists():
     sc = named_scenario("m4v6")
     a = native.run_battles(sc.generate(20, 1), "nokdps", "kiter", progress=False)
-    b = native.run_battles(native.from_arrays(sc.generate_arrays(20, 1)), "nokdps", "kiter", progress=False)
+    b = native.run_battles(
+        native.from_arrays(sc.generate_arrays(20, 1)), "nokdps", "kiter", progress=False
+    )
     assert a.to_document() == b.to_document()

@@ -34,7 +34,15 @@ DAMAGE_TABLE = {
     "Terran_Vulture": [20, 19, 4, 20, 19, 10, 10],
     "Zerg_Hydralisk": [5, 4, 9, 5, 4, 7, 7],
 }
-COLUMNS = ["Terran_Marine", "Protoss_Zealot", "Protoss_Dragoon", "Zerg_Zergling", "Terran_Firebat", "Terran_Vulture", "Zerg_Hydralisk"]
+COLUMNS = [
+    "Terran_Marine",
+    "Protoss_Zealot",
+    "Protoss_Dragoon",
+    "Zerg_Zergling",
+    "Terran_Firebat",
+    "Terran_Vulture",
+    "Zerg_Hydralisk",
+]
 
 
 def test_full_damage_table():
@@ -53,7 +61,10 @@ def test_unit_constants():
     assert float(U.TABLES.dpf[U.type_id("Protoss_Zealot")]) == pytest.approx(16 / 23, rel=1e-6)
 
 
-@pytest.mark.parametrize(("t_atk", "dist", "dur"), [(0, 16, 4), (1, 4, 1), (2, 8, 2), (3, 12, 3), (4, 16, 4), (9, 16, 4), (15, 16, 4)])
+@pytest.mark.parametrize(
+    ("t_atk", "dist", "dur"),
+    [(0, 16, 4), (1, 4, 1), (2, 8, 2), (3, 12, 3), (4, 16, 4), (9, 16, 4), (15, 16, 4)],
+)
 def test_marine_move_length_near_end_of_cooldown(t_atk, dist, dur):
     """16 px in 4 frames normally, int(t_atk * 4) px when the unit can fire in fewer than 4 frames;
     t_atk == 0 means the unit can fire now and uses its cooldown (15) instead."""
@@ -100,9 +111,16 @@ def _state_with(units, **overrides):
 def test_overkill_attack_becomes_pass(rules):
     """Two P0 Marines shoot a 6-HP enemy in one turn: the first kills it, the second (higher id)
     PASSes for 20 frames and deals nothing."""
-    units = [UnitSpec(M, 0, 100, 100), UnitSpec(M, 1, 200, 100), UnitSpec(M, 0, 100, 110), UnitSpec(M, 1, 600, 600)]
+    units = [
+        UnitSpec(M, 0, 100, 100),
+        UnitSpec(M, 1, 200, 100),
+        UnitSpec(M, 0, 100, 110),
+        UnitSpec(M, 1, 600, 600),
+    ]
     st = build_state(units)
-    st = st.replace(hp=st.hp.at[1, 0].set(6), t_move=st.t_move.at[1].set(50), t_attack=st.t_attack.at[1].set(50))
+    st = st.replace(
+        hp=st.hp.at[1, 0].set(6), t_move=st.t_move.at[1].set(50), t_attack=st.t_attack.at[1].set(50)
+    )
     ctx = R.turn_context(st, rules)
     assert bool(ctx.acting[0, 0]) and bool(ctx.acting[0, 1]) and not bool(ctx.acting[1].any())
     actions = jnp.array([[R.ATTACK_BASE + 0, R.ATTACK_BASE + 0], [0, 0]], jnp.int32)
@@ -134,7 +152,15 @@ def test_simultaneous_turn_killed_units_still_fire(rules):
 def test_interpolated_position_truncates_toward_zero():
     units = [UnitSpec(M, 0, 100, 100), UnitSpec(M, 1, 400, 100)]
     # Unit moved left 12 px from (100,100) to (88,100) over frames 10..13.
-    st = _state_with(units, x=[[88], [400]], px=[[100], [400]], t_act=[[10], [0]], t_move=[[13], [0]], t_attack=[[13], [0]], last=[[MOVE], [0]])
+    st = _state_with(
+        units,
+        x=[[88], [400]],
+        px=[[100], [400]],
+        t_act=[[10], [0]],
+        t_move=[[13], [0]],
+        t_attack=[[13], [0]],
+        last=[[MOVE], [0]],
+    )
     for t, want in [(10, 100), (11, 96), (12, 92), (13, 88), (20, 88)]:
         cx, _ = R.current_positions(st, jnp.int32(t))
         # (dest - prev) * ratio = -12 * 1/3 = -4.0000005 in float32, truncated to -4.
@@ -142,7 +168,12 @@ def test_interpolated_position_truncates_toward_zero():
 
 
 def test_range_is_centre_to_centre_squared(rules):
-    units = [UnitSpec(M, 0, 100, 100), UnitSpec(M, 1, 260, 100), UnitSpec(M, 0, 100, 300), UnitSpec(M, 1, 261, 300)]
+    units = [
+        UnitSpec(M, 0, 100, 100),
+        UnitSpec(M, 1, 260, 100),
+        UnitSpec(M, 0, 100, 300),
+        UnitSpec(M, 1, 261, 300),
+    ]
     ctx = R.turn_context(build_state(units), rules)
     assert bool(ctx.in_range[0, 0, 0]) and not bool(ctx.in_range[0, 1, 1])  # 160 in, 161 out
     legal = R.legal_actions(ctx, 0)
@@ -232,7 +263,12 @@ def test_first_legal_action_order(rules):
 def test_no_jit_equals_jit(rules):
     from hybridmarl.engine import scripts as S
 
-    units = [UnitSpec(M, 0, 421, 260), UnitSpec(M, 1, 567, 300), UnitSpec(M, 0, 431, 327), UnitSpec(M, 1, 581, 321)]
+    units = [
+        UnitSpec(M, 0, 421, 260),
+        UnitSpec(M, 1, 567, 300),
+        UnitSpec(M, 0, 431, 327),
+        UnitSpec(M, 1, 581, 321),
+    ]
     st = build_state(units)
     key = jax.random.PRNGKey(0)
 
@@ -263,7 +299,9 @@ def test_no_jit_equals_jit(rules):
 def test_reference_3v3_outcomes(p0, p1, winner, survivor_hp, turns, final_time):
     """docs/engine.md#reference-traces: the 3v3 Marine state and its four script pairings."""
     units = []
-    for a, b in zip([(100, 80), (100, 100), (100, 130)], [(290, 90), (300, 100), (310, 110)], strict=True):
+    for a, b in zip(
+        [(100, 80), (100, 100), (100, 130)], [(290, 90), (300, 100), (310, 110)], strict=True
+    ):
         units += [UnitSpec(M, 0, *a), UnitSpec(M, 1, *b)]
     res = run_battles([units], p0, p1, progress=False)
     assert int(res.winner[0]) == winner

@@ -65,7 +65,12 @@ def test_reload_when_in_cooldown_and_closest_in_range(rules):
 def test_nokdps_avoids_overkill(rules):
     # Two P0 Marines, one enemy at 6 HP and one at 40: the first shoots the 6-HP one (highest
     # dpf/hp), the second sees it reserved (6 - 6 = 0) and shoots the other.
-    units = [UnitSpec(M, 0, 100, 100), UnitSpec(M, 1, 200, 100), UnitSpec(M, 0, 100, 120), UnitSpec(M, 1, 200, 120)]
+    units = [
+        UnitSpec(M, 0, 100, 100),
+        UnitSpec(M, 1, 200, 100),
+        UnitSpec(M, 0, 100, 120),
+        UnitSpec(M, 1, 200, 120),
+    ]
     a, _, _ = _decide("nokdps", units, rules, hp=[[40, 40], [6, 40]])
     assert a == [R.ATTACK_BASE + 0, R.ATTACK_BASE + 1]
     a, _, _ = _decide("attack-weakest", units, rules, hp=[[40, 40], [6, 40]])
@@ -75,16 +80,28 @@ def test_nokdps_avoids_overkill(rules):
 def test_attack_weakest_global(rules):
     # Weakest enemy overall (id 3, 5 HP) is out of range: step toward it even though another
     # enemy is in range; in range and able to fire: attack; in range but cooling down: RELOAD.
-    units = [UnitSpec(M, 0, 100, 100), UnitSpec(M, 1, 200, 100), UnitSpec(M, 0, 600, 600), UnitSpec(M, 1, 100, 500)]
+    units = [
+        UnitSpec(M, 0, 100, 100),
+        UnitSpec(M, 1, 200, 100),
+        UnitSpec(M, 0, 600, 600),
+        UnitSpec(M, 1, 100, 500),
+    ]
     a, _, _ = _decide("attack-weakest-global", units, rules, hp=[[40, 40], [40, 5]])
     assert a[0] == 4  # down (+y) toward (100, 500)
     assert a[1] == 2  # the unit at (600,600) steps left (|dx| = 500 > |dy| = 100)
     a, _, _ = _decide("attack-weakest", units, rules, hp=[[40, 40], [40, 5]])
     assert a[0] == R.ATTACK_BASE + 0
-    units = [UnitSpec(M, 0, 100, 100), UnitSpec(M, 1, 200, 100), UnitSpec(M, 0, 600, 600), UnitSpec(M, 1, 100, 150)]
+    units = [
+        UnitSpec(M, 0, 100, 100),
+        UnitSpec(M, 1, 200, 100),
+        UnitSpec(M, 0, 600, 600),
+        UnitSpec(M, 1, 100, 150),
+    ]
     a, _, _ = _decide("attack-weakest-global", units, rules, hp=[[40, 40], [40, 5]])
     assert a[0] == R.ATTACK_BASE + 1
-    a, _, _ = _decide("attack-weakest-global", units, rules, hp=[[40, 40], [40, 5]], t_attack=[[7, 7], [0, 0]])
+    a, _, _ = _decide(
+        "attack-weakest-global", units, rules, hp=[[40, 40], [40, 5]], t_attack=[[7, 7], [0, 0]]
+    )
     assert a[0] == R.RELOAD_ACTION
 
 

@@ -39,11 +39,21 @@ def test_sparcraft_geometry_is_the_former_default():
     for name in ("m5v5", "m18v20", "m30v30", "m24v30"):
         a, b = (int(v) for v in name[1:].split("v"))
         old = Scenario(
-            name=name, side0=(("Terran_Marine", a),), side1=(("Terran_Marine", b),),
-            center0=(565, 352), center1=(715, 352), radius0=100, radius1=100,
+            name=name,
+            side0=(("Terran_Marine", a),),
+            side1=(("Terran_Marine", b),),
+            center0=(565, 352),
+            center1=(715, 352),
+            radius0=100,
+            radius1=100,
         )
         for sc in (named_scenario(name), named_scenario(name, "sparcraft")):
-            assert (sc.center0, sc.center1, sc.radius0, sc.radius1) == (old.center0, old.center1, 100, 100)
+            assert (sc.center0, sc.center1, sc.radius0, sc.radius1) == (
+                old.center0,
+                old.center1,
+                100,
+                100,
+            )
             assert sc.generate(3, 7) == old.generate(3, 7)
     apart = named_scenario("m4v6-apart", "paper")  # -apart keeps its geometry under every setting
     assert (apart.center0, apart.center1, apart.radius0) == ((440, 352), (840, 352), 100)
@@ -75,16 +85,38 @@ def test_unknown_setting_and_contradictions():
         check_options("paper", p_arrive=0.2)
     assert check_options("paper", overkill="classic", stalemate_limit=200).name == "paper"
     # The default setting is the base of custom runs: options change it.
-    assert check_options("sparcraft", overkill="classic", stalemate_limit=200, p_arrive=0.5).name == "sparcraft"
+    assert (
+        check_options("sparcraft", overkill="classic", stalemate_limit=200, p_arrive=0.5).name
+        == "sparcraft"
+    )
 
 
 @pytest.mark.parametrize(
     "argv, msg",
     [
-        (["battle", "--setting", "paper", "--overkill", "pass"], "--overkill pass contradicts --setting paper"),
-        (["battle", "--setting", "paper", "--stalemate-limit", "50"], "contradicts --setting paper"),
+        (
+            ["battle", "--setting", "paper", "--overkill", "pass"],
+            "--overkill pass contradicts --setting paper",
+        ),
+        (
+            ["battle", "--setting", "paper", "--stalemate-limit", "50"],
+            "contradicts --setting paper",
+        ),
         (["battle", "--setting", "nope"], "unknown setting 'nope'"),
-        (["eval", "--script", "always-gas", "--env", "traffic_junction", "--setting", "paper", "--p-arrive", "0.3"], "--p-arrive 0.3 contradicts"),
+        (
+            [
+                "eval",
+                "--script",
+                "always-gas",
+                "--env",
+                "traffic_junction",
+                "--setting",
+                "paper",
+                "--p-arrive",
+                "0.3",
+            ],
+            "--p-arrive 0.3 contradicts",
+        ),
         (["eval", "--script", "attack-closest", "--setting", "nope"], "unknown setting"),
         (["demos", "collect", "--out", "x.safetensors", "--setting", "nope"], "unknown setting"),
         (["replay", "--setting", "nope"], "unknown setting"),
@@ -104,7 +136,24 @@ def test_battle_setting_sparcraft_equals_default(tmp_path):
     docs = []
     for extra in ([], ["--setting", "sparcraft"]):
         out = tmp_path / f"r{len(docs)}.json"
-        assert main(["battle", "--scenario", "m5v5", "--n", "20", "--seed", "2", "--out", str(out), "--no-progress", *extra]) == 0
+        assert (
+            main(
+                [
+                    "battle",
+                    "--scenario",
+                    "m5v5",
+                    "--n",
+                    "20",
+                    "--seed",
+                    "2",
+                    "--out",
+                    str(out),
+                    "--no-progress",
+                    *extra,
+                ]
+            )
+            == 0
+        )
         docs.append(json.loads(out.read_text()))
     assert docs[0]["results"] == docs[1]["results"] and docs[0]["setting"] == "sparcraft"
 
@@ -113,18 +162,53 @@ def test_battle_paper_setting_plays_its_rules_and_geometry(tmp_path):
     from hybridmarl.engine.battle import run_battles
 
     out = tmp_path / "p.json"
-    assert main(["battle", "--scenario", "m5v5", "--n", "20", "--seed", "2", "--setting", "paper", "--overkill", "classic", "--out", str(out), "--no-progress", "--engine", "native"]) == 0
+    assert (
+        main(
+            [
+                "battle",
+                "--scenario",
+                "m5v5",
+                "--n",
+                "20",
+                "--seed",
+                "2",
+                "--setting",
+                "paper",
+                "--overkill",
+                "classic",
+                "--out",
+                str(out),
+                "--no-progress",
+                "--engine",
+                "native",
+            ]
+        )
+        == 0
+    )
     doc = json.loads(out.read_text())
     states = named_scenario("m5v5", "paper").generate(20, 2)
-    res = run_battles(states, "attack-closest", "attack-weakest", rules=get_setting("paper").rules(), progress=False, engine="native")
+    res = run_battles(
+        states,
+        "attack-closest",
+        "attack-weakest",
+        rules=get_setting("paper").rules(),
+        progress=False,
+        engine="native",
+    )
     assert doc["setting"] == "paper" and doc["results"] == res.to_document()["results"]
 
 
 def test_quickstart_run_dir_names_a_non_default_setting():
     from hybridmarl.cli.quickstart import default_run_dir
 
-    assert str(default_run_dir("m5v5", "attack-closest", 0)) == "runs/quickstart-m5v5-attack-closest-s0"
-    assert str(default_run_dir("m5v5", "attack-closest", 0, setting="paper")) == "runs/quickstart-m5v5-attack-closest-paper-s0"
+    assert (
+        str(default_run_dir("m5v5", "attack-closest", 0))
+        == "runs/quickstart-m5v5-attack-closest-s0"
+    )
+    assert (
+        str(default_run_dir("m5v5", "attack-closest", 0, setting="paper"))
+        == "runs/quickstart-m5v5-attack-closest-paper-s0"
+    )
 
 
 def test_combat_env_and_task_take_the_setting():
@@ -142,7 +226,9 @@ def test_combat_env_and_task_take_the_setting():
         Combat("m5v5", setting="paper", overkill="pass")
     task = Task(TaskSpec(scenario="m5v5", setting="paper"))
     assert task.env.rules.overkill == "classic" and "paper setting" in task.spec.label()
-    assert TaskSpec.from_dict({"env": "combat", "scenario": "m5v5"}).setting == "sparcraft"  # old runs
+    assert (
+        TaskSpec.from_dict({"env": "combat", "scenario": "m5v5"}).setting == "sparcraft"
+    )  # old runs
 
 
 def test_training_config_records_the_setting():
@@ -166,12 +252,20 @@ def test_traffic_junction_paper_setting():
 
     assert SETTINGS["paper"].p_arrive == 0.105
     task = Task(TaskSpec(env="traffic_junction", p_arrive=0.105, setting="paper"))
-    assert float(task.params.p_arrive) == pytest.approx(0.105) and "paper setting" in task.spec.label()
+    assert (
+        float(task.params.p_arrive) == pytest.approx(0.105) and "paper setting" in task.spec.label()
+    )
     with pytest.raises(UserError, match="contradicts"):
         Task(TaskSpec(env="traffic_junction", setting="paper"))  # p_arrive 0.2 is not the paper's
-    line = task.result_line({
-        "n": 10, "failure_rate": 0.7, "failure_rate_ci95": [0.4, 0.9], "R": -1.0, "mean_arrivals": 11.54,
-    })
+    line = task.result_line(
+        {
+            "n": 10,
+            "failure_rate": 0.7,
+            "failure_rate_ci95": [0.4, 0.9],
+            "R": -1.0,
+            "mean_arrivals": 11.54,
+        }
+    )
     assert "arrivals/episode 11.5" in line
 
 
@@ -181,13 +275,25 @@ def test_resume_under_another_setting_is_refused(tmp_path):
     from hybridmarl.training.run import Run
 
     run_dir = tmp_path / "run"
-    base = PRESETS["toy"]("traffic_junction").replace(run_dir=str(run_dir), progress=False, tensorboard=False, resume=True)
+    base = PRESETS["toy"]("traffic_junction").replace(
+        run_dir=str(run_dir), progress=False, tensorboard=False, resume=True
+    )
     # A checkpoint written before settings existed (no "setting" in its task) reads as sparcraft.
-    save_checkpoint(run_dir, 4, {"x": np.zeros(1, np.float32)}, {"task": {"env": "traffic_junction"}})
-    with pytest.raises(UserError, match=r"trained under setting 'sparcraft'; cannot resume it under setting 'paper'"):
+    save_checkpoint(
+        run_dir, 4, {"x": np.zeros(1, np.float32)}, {"task": {"env": "traffic_junction"}}
+    )
+    with pytest.raises(
+        UserError,
+        match=r"trained under setting 'sparcraft'; cannot resume it under setting 'paper'",
+    ):
         Run("hybrid", base.replace(setting="paper"))
     with Run("hybrid", base):  # the same setting resumes
         pass
-    save_checkpoint(run_dir, 8, {"x": np.zeros(1, np.float32)}, {"task": {"env": "traffic_junction", "setting": "paper"}})
+    save_checkpoint(
+        run_dir,
+        8,
+        {"x": np.zeros(1, np.float32)},
+        {"task": {"env": "traffic_junction", "setting": "paper"}},
+    )
     with pytest.raises(UserError, match=r"'paper'; cannot resume it under setting 'sparcraft'"):
         Run("hybrid", base)

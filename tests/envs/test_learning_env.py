@@ -108,7 +108,9 @@ def test_task_takes_everything_from_the_env_class(monkeypatch):
     _, s2, _, _, info = task.step(jax.random.key(2), s, a)
     assert float(task.episode_stats(s2, info)["hits"]) == 2.0
     assert np.asarray(task.agent_rewards(s, s2, jnp.asarray(False), info)).tolist() == [0.5, 0.5]
-    res = task.summarize({"hits": np.array([1.0, 3.0]), "return": np.zeros(2), "steps": np.array([3, 5])})
+    res = task.summarize(
+        {"hits": np.array([1.0, 3.0]), "return": np.zeros(2), "steps": np.array([3, 5])}
+    )
     assert res == {"n": 2, "mean_hits": 2.0, "mean_steps": 4.0}
     assert task.result_line(res) == "counter: 2.0 hits in 2 episodes"
 
@@ -137,7 +139,9 @@ def test_task_with_an_enemy_script_and_mirroring():
     from hybridmarl.envs.combat.opponents import mirror_env
 
     script = get_script("attack-closest")
-    task = Task(TaskSpec(env="combat", scenario="m3v4", enemy="attack-weakest"), enemy_script=script)
+    task = Task(
+        TaskSpec(env="combat", scenario="m3v4", enemy="attack-weakest"), enemy_script=script
+    )
     assert task.env.enemy is script and task.enemy == "attack-weakest"
     mirror = mirror_env(task.env)
     assert (mirror.num_agents, mirror.num_enemies) == (4, 3)

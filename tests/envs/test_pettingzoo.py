@@ -46,9 +46,7 @@ def test_dict_observation_and_masks_match_get_avail_actions_tj():
     obs, infos = pz.reset(seed=3)
     _check_obs_and_masks(pz, obs, infos, avail)
     for _ in range(12):
-        actions = {
-            a: int(pz.action_space(a).sample(mask=obs[a]["action_mask"])) for a in pz.agents
-        }
+        actions = {a: int(pz.action_space(a).sample(mask=obs[a]["action_mask"])) for a in pz.agents}
         obs, _, _, _, infos = pz.step(actions)
         _check_obs_and_masks(pz, obs, infos, avail)
     assert pz.illegal_action_count == 0  # masked sampling never plays an illegal action

@@ -28,7 +28,9 @@ def test_paired_wins_by_hand():
     # per-state differences 0, 1, 0, 1, -1, 0: mean 1/6.
     diff = np.array([0, 1, 0, 1, -1, 0], float)
     sd = math.sqrt(((diff - diff.mean()) ** 2).sum() / 5)
-    assert out["n"] == 6 and out["W_a"] == pytest.approx(4 / 6) and out["W_b"] == pytest.approx(3 / 6)
+    assert (
+        out["n"] == 6 and out["W_a"] == pytest.approx(4 / 6) and out["W_b"] == pytest.approx(3 / 6)
+    )
     assert out["dW"] == pytest.approx(1 / 6)
     assert out["dW_high"] - out["dW"] == pytest.approx(1.959963984540054 * sd / math.sqrt(6))
     assert (out["only_a"], out["only_b"]) == (2, 1)

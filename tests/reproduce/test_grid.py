@@ -35,19 +35,28 @@ def test_task_counts_per_table_and_budget():
         # Fig. 3 reuses Table 1's BC/DQfD/OGTL/Ours runs at m18v20 and m24v30 (demonstrator c):
         # only its Random curves are new tasks.
         assert len(everything.tasks) == len(t1.tasks) + len(t2.tasks) + 2 * seeds
-        assert set(f3.tasks) - set(t1.tasks) == {k for k, t in f3.tasks.items() if t.config["row"] == "Random"}
+        assert set(f3.tasks) - set(t1.tasks) == {
+            k for k, t in f3.tasks.items() if t.config["row"] == "Random"
+        }
     # At 'cpu' Random is 'quick-wo-d' with the one-step Q (native engine), w/o D 'quick-wo-d' as it is.
     cpu = expand(("fig3", "table2"), "cpu", "paper", Selection(seeds=(0,)))
     by_row = {t.config["row"]: t.config for t in cpu.tasks.values() if t.kind == "train"}
-    assert by_row["Random"]["preset"] == "quick-wo-d" and by_row["Random"]["overrides"] == {"lookahead_steps": 1}
-    assert by_row["Ours w/o D"]["preset"] == "quick-wo-d" and by_row["Ours w/o D"]["overrides"] == {}
+    assert by_row["Random"]["preset"] == "quick-wo-d" and by_row["Random"]["overrides"] == {
+        "lookahead_steps": 1
+    }
+    assert (
+        by_row["Ours w/o D"]["preset"] == "quick-wo-d" and by_row["Ours w/o D"]["overrides"] == {}
+    )
 
 
 def test_keys_are_stable_hashes_of_the_config():
     sel = Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("D", "BC"))
     g = expand(("table1",), "smoke", "paper", sel)
     # A key names a task's run directory: changing it would orphan every finished result.
-    assert {t.label: k for k, t in g.tasks.items()} == {"D-m5v5-c": "ddeb2d3ec57c", "BC-m5v5-c-s0": "910168af1f2c"}
+    assert {t.label: k for k, t in g.tasks.items()} == {
+        "D-m5v5-c": "ddeb2d3ec57c",
+        "BC-m5v5-c-s0": "910168af1f2c",
+    }
     # The same task asked for by a larger selection keeps its key; another setting does not.
     full = expand(("table1",), "smoke", "paper")
     assert set(g.tasks) <= set(full.tasks)
@@ -61,24 +70,64 @@ def test_keys_are_stable_hashes_of_the_config():
 def test_cross_validation_and_search_budgets():
     g = expand(("table1",), "cpu", "paper", Selection(scenarios=("m18v20",), demonstrators=("w",)))
     by_row = {c.row: [g.tasks[k] for k in c.keys] for c in g.cells}
-    assert by_row["D"][0].config["player"] == "attack-weakest" and by_row["D"][0].config["enemy"] == "attack-closest"
+    assert (
+        by_row["D"][0].config["player"] == "attack-weakest"
+        and by_row["D"][0].config["enemy"] == "attack-closest"
+    )
     # SparCraft's 40 ms on one core, interpolated between its 16- and 32-Marine figures for 20 units.
-    assert by_row["UCT"][0].config["player"] == "uct:script=attack-weakest,playout1=attack-closest,traversals=90,time_ms=0"
-    assert by_row["A-B"][0].config["player"] == "abcd:script=attack-weakest,playout1=attack-closest,nodes=175,time_ms=0"
-    assert by_row["Profile"][0].config["player"] == "pgs:portfolio=attack-closest+attack-weakest,time_ms=0"
+    assert (
+        by_row["UCT"][0].config["player"]
+        == "uct:script=attack-weakest,playout1=attack-closest,traversals=90,time_ms=0"
+    )
+    assert (
+        by_row["A-B"][0].config["player"]
+        == "abcd:script=attack-weakest,playout1=attack-closest,nodes=175,time_ms=0"
+    )
+    assert (
+        by_row["Profile"][0].config["player"]
+        == "pgs:portfolio=attack-closest+attack-weakest,time_ms=0"
+    )
     ours = by_row["Ours"]
     assert [t.config["seed"] for t in ours] == [0, 1, 2]
-    assert ours[0].config["overrides"] == {"brd_start": "demonstrator"} and ours[0].config["enemy"] == "attack-closest"
-    wall = expand(("table1",), "cpu", "paper", Selection(scenarios=("m5v5",), rows=("A-B",), search_budget="wallclock"))
+    assert (
+        ours[0].config["overrides"] == {"brd_start": "demonstrator"}
+        and ours[0].config["enemy"] == "attack-closest"
+    )
+    wall = expand(
+        ("table1",),
+        "cpu",
+        "paper",
+        Selection(scenarios=("m5v5",), rows=("A-B",), search_budget="wallclock"),
+    )
     assert all(t.config["player"].endswith("time_ms=40") for t in wall.tasks.values())
-    both_sides = expand(("table1",), "cpu", "paper", Selection(scenarios=("m18v20",), demonstrators=("w",), rows=("UCT", "A-B", "Profile"), search_model="demonstrator"))
+    both_sides = expand(
+        ("table1",),
+        "cpu",
+        "paper",
+        Selection(
+            scenarios=("m18v20",),
+            demonstrators=("w",),
+            rows=("UCT", "A-B", "Profile"),
+            search_model="demonstrator",
+        ),
+    )
     players = sorted(t.config["player"] for t in both_sides.tasks.values())
-    assert players == [
-        "abcd:script=attack-weakest,nodes=175,time_ms=0",
-        "pgs:portfolio=attack-closest+attack-weakest,time_ms=0",  # PGS has no playout script per side
-        "uct:script=attack-weakest,traversals=90,time_ms=0",
-    ]
-    known = expand(("table1",), "cpu", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("A-B",), search_model="enemy-script"))
+    assert (
+        players
+        == [
+            "abcd:script=attack-weakest,nodes=175,time_ms=0",
+            "pgs:portfolio=attack-closest+attack-weakest,time_ms=0",  # PGS has no playout script per side
+            "uct:script=attack-weakest,traversals=90,time_ms=0",
+        ]
+    )
+    known = expand(
+        ("table1",),
+        "cpu",
+        "paper",
+        Selection(
+            scenarios=("m5v5",), demonstrators=("c",), rows=("A-B",), search_model="enemy-script"
+        ),
+    )
     assert [t.config["player"] for t in known.tasks.values()] == [
         "abcd:script=attack-closest,playout1=attack-weakest,opponent_model=attack-weakest,nodes=350,time_ms=0"
     ]
@@ -149,24 +198,55 @@ def test_output_folder_of_another_setting_is_refused(tmp_path, capsys):
     stranger = tmp_path / "stranger"
     stranger.mkdir()
     (stranger / "notes.txt").write_text("mine")
-    assert main(["reproduce", "table1", "--budget", "smoke", "--rows", "D", "--status", "--out", str(stranger)]) == EXIT_BAD_INPUT
+    assert (
+        main(
+            [
+                "reproduce",
+                "table1",
+                "--budget",
+                "smoke",
+                "--rows",
+                "D",
+                "--status",
+                "--out",
+                str(stranger),
+            ]
+        )
+        == EXIT_BAD_INPUT
+    )
     assert "holds no reproduce.json" in capsys.readouterr().err
 
 
-def _fake_result(state: driver.GridState, task: grid.GridTask, rng: np.random.Generator, win_p: float, cpu_s: float = 60.0) -> None:
+def _fake_result(
+    state: driver.GridState,
+    task: grid.GridTask,
+    rng: np.random.Generator,
+    win_p: float,
+    cpu_s: float = 60.0,
+) -> None:
     n = task.config["n"]
     won = (rng.random(n) < win_p).astype(float).tolist()
     hp = rng.normal(0.2 if win_p > 0.5 else -0.2, 0.1, n).tolist()
     d = state.task_dir(task)
     d.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(d / "result.json", {
-        "key": task.key, "kind": task.kind, "config": task.config, "wall_s": 1.0, "cpu_s": cpu_s,
-        "summary": {"W": float(np.mean(won)), "R": float(np.mean(hp))}, "per_episode": {"won": won, "terminal_hp_reward": hp},
-    })
+    write_json_atomic(
+        d / "result.json",
+        {
+            "key": task.key,
+            "kind": task.kind,
+            "config": task.config,
+            "wall_s": 1.0,
+            "cpu_s": cpu_s,
+            "summary": {"W": float(np.mean(won)), "R": float(np.mean(hp))},
+            "per_episode": {"won": won, "terminal_hp_reward": hp},
+        },
+    )
 
 
 def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
-    sel = Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("D", "Profile", "Ours"), seeds=(0, 1))
+    sel = Selection(
+        scenarios=("m5v5",), demonstrators=("c",), rows=("D", "Profile", "Ours"), seeds=(0, 1)
+    )
     g = expand(("table1",), "smoke", "paper", sel)
     state = driver.GridState(tmp_path, g)
     assert len(driver.prepare(state)) == 4  # D, Profile, Ours seeds 0 and 1
@@ -178,7 +258,10 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
     # A result of another task, or a truncated one, does not count as done.
     bad = state.task_dir(by_row["Profile"][0]) / "result.json"
     write_json_atomic(bad, {"key": "someoneelse", "summary": {}, "per_episode": {"won": [1.0]}})
-    write_json_atomic(state.task_dir(by_row["Profile"][0]) / driver.FAILED_FILE, {"exit_code": 1, "error": "exit code 1", "log": "x/log.txt"})
+    write_json_atomic(
+        state.task_dir(by_row["Profile"][0]) / driver.FAILED_FILE,
+        {"exit_code": 1, "error": "exit code 1", "log": "x/log.txt"},
+    )
     state.scan()
     assert state.status(by_row["Profile"][0].key) == "failed"
     doc, md, _ = outputs.table1(state)
@@ -200,7 +283,7 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
         assert ours["over_seeds_ci95"][metric] == pytest.approx(expected, rel=1e-4), metric
     assert "over seeds, 95 % CI W [" in md
     # The cost table: CPU minutes per task, min–max over a learner's seeds; none for a failed cell.
-    cost = md[md.index("## Cost"):].splitlines()
+    cost = md[md.index("## Cost") :].splitlines()
     assert "| D_c | 0.5 |" in cost and "| Ours_c | 2.0–4.0 |" in cost and "| Profile_c |  |" in cost
     assert ours["cpu_s"] == 360.0 and ours["cpu_s_per_task"] == [240.0, 120.0]
     # A status report keeps the failure; the next run does only the failed task, and clears
@@ -214,7 +297,13 @@ def test_finished_tasks_are_skipped_and_failed_ones_retried(tmp_path):
 
 def test_outputs_of_a_partial_grid(tmp_path):
     pytest.importorskip("matplotlib")
-    g = expand(protocol.TABLES, "smoke", "paper", Selection(scenarios=("m18v20",), demonstrators=("c",), rows=("D", "Ours")), drop_empty=True)
+    g = expand(
+        protocol.TABLES,
+        "smoke",
+        "paper",
+        Selection(scenarios=("m18v20",), demonstrators=("c",), rows=("D", "Ours")),
+        drop_empty=True,
+    )
     state = driver.GridState(tmp_path, g)
     driver.check_output_folder(tmp_path, g, force=False)
     driver.prepare(state)
@@ -224,19 +313,36 @@ def test_outputs_of_a_partial_grid(tmp_path):
     _fake_result(state, ours, np.random.default_rng(2), 0.8)
     run = state.task_dir(ours) / "run"
     run.mkdir()
-    (run / "episodes.csv").write_text("episode,terminal_hp_reward\n" + "".join(f"{i},{i / 300:.4f}\n" for i in range(1, 301)))
+    (run / "episodes.csv").write_text(
+        "episode,terminal_hp_reward\n" + "".join(f"{i},{i / 300:.4f}\n" for i in range(1, 301))
+    )
     state.scan()
     written = outputs.write_outputs(state, json.loads((tmp_path / driver.MANIFEST).read_text()))
-    assert {p.name for p in written} == {"table1.md", "table1.json", "table2.md", "table2.json", "fig3.png", "report.html"}
+    assert {p.name for p in written} == {
+        "table1.md",
+        "table1.json",
+        "table2.md",
+        "table2.json",
+        "fig3.png",
+        "report.html",
+    }
     report = (tmp_path / "report.html").read_text()
     assert "data:image/png;base64," in report and outputs.REPLAY_PLACEHOLDER in report
     t2 = json.loads((tmp_path / "table2.json").read_text())
-    assert t2["rows"]["D"]["status"] == "pending" and t2["rows"]["D"]["paper"]["failure_rate"] == 0.72
+    assert (
+        t2["rows"]["D"]["status"] == "pending" and t2["rows"]["D"]["paper"]["failure_rate"] == 0.72
+    )
     assert Path(tmp_path / "fig3.png").stat().st_size > 1000
 
 
 def test_the_paper_star_marks_the_best_of_the_papers_whole_column(tmp_path):
-    g = expand(("table1",), "smoke", "paper", Selection(scenarios=("m18v20",), demonstrators=("c",), rows=("D",)), drop_empty=True)
+    g = expand(
+        ("table1",),
+        "smoke",
+        "paper",
+        Selection(scenarios=("m18v20",), demonstrators=("c",), rows=("D",)),
+        drop_empty=True,
+    )
     state = driver.GridState(tmp_path, g)
     driver.check_output_folder(tmp_path, g, force=False)
     driver.prepare(state)
@@ -244,18 +350,36 @@ def test_the_paper_star_marks_the_best_of_the_papers_whole_column(tmp_path):
     _fake_result(state, g.tasks[cell.keys[0]], np.random.default_rng(1), 0.3)
     state.scan()
     outputs.write_outputs(state, json.loads((tmp_path / driver.MANIFEST).read_text()))
-    d_line = next(line for line in (tmp_path / "table1.md").read_text().splitlines() if line.startswith("| D_c |"))
+    d_line = next(
+        line
+        for line in (tmp_path / "table1.md").read_text().splitlines()
+        if line.startswith("| D_c |")
+    )
     d_line = d_line.replace("**", "")  # our best of the column, in bold
     # The paper's best at m18v20 is Ours (0.87, +0.24), not D, even when D is the only row run.
     assert "paper 0.32" in d_line and "paper 0.32*" not in d_line and "paper −0.11*" not in d_line
 
 
 def test_search_budgets_are_sparcraft_40ms_by_army_size():
-    assert protocol.sparcraft_40ms_budget("m5v5") == {"traversals": 240, "nodes": 350}  # held at 8 Marines
-    assert protocol.sparcraft_40ms_budget("m16v16") == {"traversals": 105, "nodes": 200}  # a measured size
-    assert protocol.sparcraft_40ms_budget("m24v30") == {"traversals": 52, "nodes": 112}  # 30 units: 105 - 14/16 * 60
+    assert protocol.sparcraft_40ms_budget("m5v5") == {
+        "traversals": 240,
+        "nodes": 350,
+    }  # held at 8 Marines
+    assert protocol.sparcraft_40ms_budget("m16v16") == {
+        "traversals": 105,
+        "nodes": 200,
+    }  # a measured size
+    assert protocol.sparcraft_40ms_budget("m24v30") == {
+        "traversals": 52,
+        "nodes": 112,
+    }  # 30 units: 105 - 14/16 * 60
     assert protocol.sparcraft_40ms_budget("m60v60") == {"traversals": 25, "nodes": 50}  # held at 50
-    g = expand(("table1",), "full", "paper", Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("UCT", "A-B")))
+    g = expand(
+        ("table1",),
+        "full",
+        "paper",
+        Selection(scenarios=("m5v5",), demonstrators=("c",), rows=("UCT", "A-B")),
+    )
     assert sorted(t.config["player"] for t in g.tasks.values()) == [
         "abcd:script=attack-closest,playout1=attack-weakest,nodes=350,time_ms=0",
         "uct:script=attack-closest,playout1=attack-weakest,traversals=240,time_ms=0",

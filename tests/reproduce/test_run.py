@@ -20,7 +20,9 @@ SLICE = ["table1", "--budget", "smoke", "--scenarios", "m5v5", "--demonstrators"
 def smoke_slice(tmp_path_factory) -> Path:
     """The D and BC cells of m5v5 from c, run by the local executor (one process per task)."""
     out = tmp_path_factory.mktemp("reproduce") / "out"
-    assert main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    assert (
+        main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    )
     return out
 
 
@@ -49,7 +51,9 @@ def test_smoke_slice_fills_its_cells(smoke_slice):
 def test_rerun_runs_nothing(smoke_slice, capsys):
     out = smoke_slice
     before = {p: p.stat().st_mtime_ns for p in (out / "tasks").glob("*/result.json")}
-    assert main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    assert (
+        main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    )
     err = capsys.readouterr().err
     assert "2 done earlier, 0 to run" in err and "started" not in err
     assert {p: p.stat().st_mtime_ns for p in (out / "tasks").glob("*/result.json")} == before
@@ -62,7 +66,9 @@ def test_failed_task_is_reported_and_retried(smoke_slice, tmp_path, capsys):
     result = d / "result.json"
     result.unlink()
     result.mkdir()  # the task cannot write its result: it fails
-    assert main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 1
+    assert (
+        main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 1
+    )
     err = capsys.readouterr().err
     assert "FAILED   D-m5v5-c" in err and str(d / "log.txt") in err
     failure = json.loads((d / "failed.json").read_text())
@@ -73,20 +79,48 @@ def test_failed_task_is_reported_and_retried(smoke_slice, tmp_path, capsys):
     assert "failed" in line and "[" not in line
     # Fixed, the next run retries the failed task only.
     result.rmdir()
-    assert main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    assert (
+        main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    )
     err = capsys.readouterr().err
-    assert "1 done earlier, 1 to run" in err and "started  D-m5v5-c" in err and "BC-m5v5-c-s0" not in err
+    assert (
+        "1 done earlier, 1 to run" in err
+        and "started  D-m5v5-c" in err
+        and "BC-m5v5-c-s0" not in err
+    )
     assert not (d / "failed.json").exists()
-    assert json.loads((out / "table1.json").read_text())["rows"]["D_c"]["m5v5/c"]["status"] == "done"
+    assert (
+        json.loads((out / "table1.json").read_text())["rows"]["D_c"]["m5v5/c"]["status"] == "done"
+    )
 
 
-@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="the 'scale' extra (ray) is not installed")
+@pytest.mark.skipif(
+    importlib.util.find_spec("ray") is None, reason="the 'scale' extra (ray) is not installed"
+)
 def test_ray_local_cluster_runs_the_same_task(smoke_slice, tmp_path):
     out = tmp_path / "out"
-    assert main(["reproduce", *SLICE, "--rows", "D", "--executor", "ray", "--workers", "1", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "reproduce",
+                *SLICE,
+                "--rows",
+                "D",
+                "--executor",
+                "ray",
+                "--workers",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     ray_cell = json.loads((out / "table1.json").read_text())["rows"]["D_c"]["m5v5/c"]
     local_cell = json.loads((smoke_slice / "table1.json").read_text())["rows"]["D_c"]["m5v5/c"]
-    assert ray_cell["W"] == local_cell["W"] and ray_cell["R"] == local_cell["R"]  # the same start states
+    assert (
+        ray_cell["W"] == local_cell["W"] and ray_cell["R"] == local_cell["R"]
+    )  # the same start states
 
 
 def test_a_task_trained_earlier_counts_its_training_time(smoke_slice, tmp_path):
@@ -99,7 +133,9 @@ def test_a_task_trained_earlier_counts_its_training_time(smoke_slice, tmp_path):
     training = json.loads((d / "run" / "eval.json").read_text())
     training["wall_s"] = 1000.0  # a long training, so the evaluation alone cannot reach it
     (d / "run" / "eval.json").write_text(json.dumps(training))
-    assert main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    assert (
+        main(["reproduce", *SLICE, "--rows", "D,BC", "--executor", "local", "--out", str(out)]) == 0
+    )
     assert "training finished earlier" in (d / "log.txt").read_text()
     again = json.loads((d / "result.json").read_text())
     assert again["summary"] == first["summary"]

@@ -48,7 +48,11 @@ def test_a_killed_search_task_resumes_where_it_stopped(task, uninterrupted, tmp_
 
     monkeypatch.setattr(evaluate, "play_search_battles", real)
     started = []
-    monkeypatch.setattr(evaluate, "play_search_battles", lambda *a, **k: (started.append(k["first"]), real(*a, **k))[1])
+    monkeypatch.setattr(
+        evaluate,
+        "play_search_battles",
+        lambda *a, **k: (started.append(k["first"]), real(*a, **k))[1],
+    )
     summary, per_episode, (wall_before, _) = worker.evaluate_search(task, PLAYER, N, SEED, tmp_path)
     assert started == [2] and wall_before > 0
     whole_summary, whole_per_episode, _ = uninterrupted
@@ -58,7 +62,9 @@ def test_a_killed_search_task_resumes_where_it_stopped(task, uninterrupted, tmp_
 
 
 def test_a_partial_file_of_another_task_is_ignored(task, uninterrupted, tmp_path):
-    (tmp_path / worker.PARTIAL_FILE).write_text(json.dumps({"player": "other", "n": N, "seed": SEED, "episodes": {"won": [1.0] * 3}}))
+    (tmp_path / worker.PARTIAL_FILE).write_text(
+        json.dumps({"player": "other", "n": N, "seed": SEED, "episodes": {"won": [1.0] * 3}})
+    )
     _, per_episode, (wall_before, _) = worker.evaluate_search(task, PLAYER, N, SEED, tmp_path)
     assert wall_before == 0.0 and per_episode == uninterrupted[1]
     (tmp_path / worker.PARTIAL_FILE).write_text("{not json")

@@ -28,7 +28,9 @@ def _mixed(rng: np.random.Generator, n: int) -> list[UnitSpec]:
     for p in (0, 1):
         for _ in range(n):
             t = TYPES[int(rng.integers(len(TYPES)))]
-            units.append(UnitSpec(t, p, int(640 + rng.integers(-90, 90)), int(360 + rng.integers(-90, 90))))
+            units.append(
+                UnitSpec(t, p, int(640 + rng.integers(-90, 90)), int(360 + rng.integers(-90, 90)))
+            )
     return units
 
 
@@ -55,7 +57,9 @@ def cases():
     for i, (units, rules) in enumerate(starts):
         st = build_state(units, SLOTS)
         out.append((st, rules))
-        mid = play_game_with_players(st, rules, "nokdps", "kiter-dps", max_turns=5 + 4 * i).final_state
+        mid = play_game_with_players(
+            st, rules, "nokdps", "kiter-dps", max_turns=5 + 4 * i
+        ).final_state
         out.append((mid, rules))
     return out
 
@@ -109,7 +113,10 @@ def _random_rows(rng, info, m, n):
     return actions, mask
 
 
-@pytest.mark.parametrize(("cap", "use_ltd", "variant"), [(0, False, None), (200, False, None), (7, True, None), (200, False, "classic")])
+@pytest.mark.parametrize(
+    ("cap", "use_ltd", "variant"),
+    [(0, False, None), (200, False, None), (7, True, None), (200, False, "classic")],
+)
 def test_search_call_matches_jax(cases, cap, use_ltd, variant):
     """Children, node info (masked to acting units where scripts leave others undefined),
     step / playout MOVE counts and leaf values of random joint actions are equal (``classic``:
@@ -130,14 +137,28 @@ def test_search_call_matches_jax(cases, cap, use_ltd, variant):
         do_step = rng.random(m) < 0.9
         for p in (0, 1):
             want = eng.run(m, root, actions, mask, do_step, p, cap, use_ltd)
-            got = search_call(NativeArgs(consts, rules), root, actions, mask, do_step, p, cap, use_ltd, info_scripts, playout, 0)
+            got = search_call(
+                NativeArgs(consts, rules),
+                root,
+                actions,
+                mask,
+                do_step,
+                p,
+                cap,
+                use_ltd,
+                info_scripts,
+                playout,
+                0,
+            )
             for key in ("child", "step_moves", "value", "playout_moves", "both_dead"):
                 assert np.array_equal(got[key], want[key]), key
             gi, wi = got["info"], want["info"]
             for key in ("movers", "acting", "legal", "order", "terminal", "ev", "hash"):
                 assert np.array_equal(gi[key], wi[key]), key
             acting = wi["acting"][:, None]  # [m, 1, 2, U]
-            assert np.array_equal(np.where(acting, gi["scripts"], 0), np.where(acting, wi["scripts"], 0))
+            assert np.array_equal(
+                np.where(acting, gi["scripts"], 0), np.where(acting, wi["scripts"], 0)
+            )
 
 
 def test_pgs_call_matches_jax(cases):
@@ -149,7 +170,9 @@ def test_pgs_call_matches_jax(cases):
         assign = rng.integers(0, len(scripts), size=(k, 2, SLOTS)).astype(np.int32)
         player = rng.integers(0, 2, size=k).astype(np.int32)
         fn = K.pgs_fn(SLOTS, k, scripts, 100, K.rules_static(rules))
-        want = np.asarray(fn(np.zeros(2, np.uint32), root, assign, player, *DeviceArgs(consts, rules, "jax").args))
+        want = np.asarray(
+            fn(np.zeros(2, np.uint32), root, assign, player, *DeviceArgs(consts, rules, "jax").args)
+        )
         got = pgs_call(NativeArgs(consts, rules), root, assign, player, scripts, 100, 0)
         assert np.array_equal(got, want)
 

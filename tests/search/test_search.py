@@ -46,7 +46,9 @@ def decision_states(rules):
     for i, n in enumerate((2, 3, 4)):
         st = build_state(_sym(n, i), SLOTS)
         out.append(st)
-        mid = play_game_with_players(st, rules, "nokdps", "attack-closest", max_turns=6 + 3 * i).final_state
+        mid = play_game_with_players(
+            st, rules, "nokdps", "attack-closest", max_turns=6 + 3 * i
+        ).final_state
         out.append(mid)
     return out
 
@@ -185,7 +187,9 @@ def test_whole_game_with_search_player(p0, p1, rules):
 
 def test_run_player_battles(rules):
     states = [_sym(2, 30), _sym(4, 31)]  # padded to 4 slots, like the other tests' states
-    res = run_player_battles(states, "pgs:time_ms=0", "attack-closest", seed=0, rules=rules, progress=False)
+    res = run_player_battles(
+        states, "pgs:time_ms=0", "attack-closest", seed=0, rules=rules, progress=False
+    )
     assert len(res) == 2 and res.p0 == "pgs:time_ms=0" and res.p1 == "attack-closest"
     assert set(res.winner.tolist()) <= {-1, 0, 1}
     assert [len(h) for h in res.unit_hp] == [4, 8]
@@ -197,9 +201,16 @@ def test_make_player_parses_specs():
     assert isinstance(p, UCTPlayer)
     o = p.options
     assert (o["time_ms"], o["traversals"], o["c"], o["max_children"]) == (25.0, 5000, 1.6, 12)
-    assert (o["playout0"], o["playout1"], o["ordering"]) == ("attack-closest", "attack-closest", ("nokdps", "kiter-dps"))
+    assert (o["playout0"], o["playout1"], o["ordering"]) == (
+        "attack-closest",
+        "attack-closest",
+        ("nokdps", "kiter-dps"),
+    )
     uct_c = make_player("UCT:script=AttackClosest")
-    assert uct_c.options["ordering"] == ("attack-closest",) and uct_c.options["playout1"] == "attack-closest"  # type: ignore[attr-defined]
+    assert (
+        uct_c.options["ordering"] == ("attack-closest",)
+        and uct_c.options["playout1"] == "attack-closest"
+    )  # type: ignore[attr-defined]
     for alias in ("ab", "alphabeta", "abcd", "alpha-beta"):
         assert isinstance(make_player(alias), ABCDPlayer)
     ab = make_player("ab:ordering=none,tt=false,fallback=attack-closest", nodes=50, time_ms=0)
@@ -210,7 +221,12 @@ def test_make_player_parses_specs():
     assert isinstance(make_player("NOKDPS"), ScriptPlayer)
     assert make_player("attack_weakest").name == "attack-weakest"
     defaults = make_player("uct").options  # type: ignore[attr-defined]
-    assert (defaults["c"], defaults["traversals"], defaults["max_children"], defaults["time_ms"]) == (1.6, 5000, 20, 40.0)
+    assert (
+        defaults["c"],
+        defaults["traversals"],
+        defaults["max_children"],
+        defaults["time_ms"],
+    ) == (1.6, 5000, 20, 40.0)
 
 
 @pytest.mark.parametrize(
@@ -282,7 +298,15 @@ def test_odometer_and_children():
     kids = child_moves(legal, acting, np.array([0, 1]), scripts, 4, np.random.default_rng(0))
     assert len(kids) == 4
     assert kids[0].tolist() == [6, 7] and kids[1].tolist() == [6, 3]
-    model = child_moves(legal, acting, np.array([0, 1]), scripts, 4, np.random.default_rng(0), model_move=np.array([2, 3]))
+    model = child_moves(
+        legal,
+        acting,
+        np.array([0, 1]),
+        scripts,
+        4,
+        np.random.default_rng(0),
+        model_move=np.array([2, 3]),
+    )
     assert [m.tolist() for m in model] == [[2, 3]]
 
 
@@ -296,12 +320,18 @@ def test_eval_protocol_with_a_search_player(capsys):
     from hybridmarl.training import evaluate as E
     from hybridmarl.training.task import TaskSpec, make_task
 
-    task = make_task(TaskSpec(env="combat", scenario="m3v4", enemy="attack-weakest"))  # 4 slots, as above
+    task = make_task(
+        TaskSpec(env="combat", scenario="m3v4", enemy="attack-weakest")
+    )  # 4 slots, as above
     by_env = E.evaluate_task(task, None, None, n=4, seed=3, script="attack-closest")
     by_host = E.evaluate_player(task, "attack-closest", n=4, seed=3)
     for k in ("W", "W_ci95", "R", "R_ci95", "losses", "draws"):
         assert by_host[k] == pytest.approx(by_env[k], abs=1e-6), (k, by_host[k], by_env[k])
-    assert E.is_search_spec("uct:script=attack-closest") and E.is_search_spec("PGS") and not E.is_search_spec("nokdps")
+    assert (
+        E.is_search_spec("uct:script=attack-closest")
+        and E.is_search_spec("PGS")
+        and not E.is_search_spec("nokdps")
+    )
 
     # The module's UCT spec, so its compiled search program is shared with the tests above.
     argv = ["eval", "--script", UCT, "--scenario", "m3v4", "--n", "2", "--seed", "0", "--json"]
@@ -316,5 +346,20 @@ def test_eval_protocol_with_a_search_player(capsys):
     assert len(err) == 1 and "nope" in err[0], err
     assert main(["eval", "--script", "pgs", "--env", "traffic_junction", "--n", "2"]) == 2
     assert "combat only" in capsys.readouterr().err
-    assert main(["eval", "--script", "pgs", "--scenario", "m3v4", "--enemy-run-dir", "somewhere", "--n", "2"]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--script",
+                "pgs",
+                "--scenario",
+                "m3v4",
+                "--enemy-run-dir",
+                "somewhere",
+                "--n",
+                "2",
+            ]
+        )
+        == 2
+    )
     assert "needs a script enemy" in capsys.readouterr().err

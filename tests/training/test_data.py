@@ -39,7 +39,9 @@ def test_collect_and_round_trip(tj_dataset, tmp_path):
     assert a["episode"][0] == 0 and a["episode"][40] == 1
     # always-gas: gas exactly for active cars; returns match Eq. 1 on the recorded rewards.
     np.testing.assert_array_equal(a["actions"], a["active"].astype(np.int32))
-    np.testing.assert_allclose(a["return"][:40], discounted_returns(a["reward"][:40], 0.995), rtol=1e-5)
+    np.testing.assert_allclose(
+        a["return"][:40], discounted_returns(a["reward"][:40], 0.995), rtol=1e-5
+    )
     path = D.save_dataset(ds, tmp_path / "d.safetensors")
     back = D.load_dataset(path, expect=make_task(TJ))
     assert back.meta == json.loads(json.dumps(ds.meta))
@@ -61,7 +63,11 @@ def test_restart_from_a_recorded_state(tj_dataset):
 
 def _write(tmp_path, ds, name="bad.safetensors"):
     p = tmp_path / name
-    save_file({k: np.ascontiguousarray(v) for k, v in ds.arrays.items()}, str(p), metadata={"hybridmarl": json.dumps(ds.meta)})
+    save_file(
+        {k: np.ascontiguousarray(v) for k, v in ds.arrays.items()},
+        str(p),
+        metadata={"hybridmarl": json.dumps(ds.meta)},
+    )
     return p
 
 
@@ -74,11 +80,33 @@ def _variant(ds, arrays=None, meta=None):
     [
         (lambda ds: _variant(ds, meta={"version": 99}), "dataset version 99 is not supported"),
         (lambda ds: _variant(ds, meta={"format": "other"}), "expected 'hybridmarl-demos'"),
-        (lambda ds: _variant(ds, arrays={"actions": ds.arrays["actions"].astype(np.int64)}), "array 'actions' has dtype int64, expected int32"),
-        (lambda ds: _variant(ds, arrays={"obs": ds.arrays["obs"][:, :, :5]}), "array 'obs' has shape (90, 10, 5), expected (90, 10, 259)"),
-        (lambda ds: _variant(ds, arrays={"actions": np.where(np.arange(90)[:, None] == 7, 5, ds.arrays["actions"]).astype(np.int32)}), "action 5 out of range 0..1 at record 7, agent 0"),
-        (lambda ds: _variant(ds, arrays={"actions": np.ones_like(ds.arrays["actions"])}), "is illegal under the record's mask"),
-        (lambda ds: _variant(ds, arrays={"episode": ds.arrays["episode"][::-1].copy()}), "non-decreasing"),
+        (
+            lambda ds: _variant(ds, arrays={"actions": ds.arrays["actions"].astype(np.int64)}),
+            "array 'actions' has dtype int64, expected int32",
+        ),
+        (
+            lambda ds: _variant(ds, arrays={"obs": ds.arrays["obs"][:, :, :5]}),
+            "array 'obs' has shape (90, 10, 5), expected (90, 10, 259)",
+        ),
+        (
+            lambda ds: _variant(
+                ds,
+                arrays={
+                    "actions": np.where(
+                        np.arange(90)[:, None] == 7, 5, ds.arrays["actions"]
+                    ).astype(np.int32)
+                },
+            ),
+            "action 5 out of range 0..1 at record 7, agent 0",
+        ),
+        (
+            lambda ds: _variant(ds, arrays={"actions": np.ones_like(ds.arrays["actions"])}),
+            "is illegal under the record's mask",
+        ),
+        (
+            lambda ds: _variant(ds, arrays={"episode": ds.arrays["episode"][::-1].copy()}),
+            "non-decreasing",
+        ),
     ],
 )
 def test_validation_errors(tj_dataset, tmp_path, change, message):
@@ -111,11 +139,45 @@ def test_validation_missing_and_unreadable(tj_dataset, tmp_path, capsys):
 
 def test_demos_cli_collect_and_info(tmp_path, capsys):
     out = tmp_path / "tj.safetensors"
-    assert main(["demos", "collect", "--env", "traffic_junction", "--demonstrator", "always-gas", "--n", "90", "--seed", "3", "--num-envs", "4", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "demos",
+                "collect",
+                "--env",
+                "traffic_junction",
+                "--demonstrator",
+                "always-gas",
+                "--n",
+                "90",
+                "--seed",
+                "3",
+                "--num-envs",
+                "4",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert main(["demos", "info", str(out)]) == 0
     info = json.loads(capsys.readouterr().out.split("\n", 1)[1])
     assert info["observations"] == 90 and info["episodes"] == 3
-    assert main(["demos", "collect", "--env", "traffic_junction", "--demonstrator", "nope", "--out", str(tmp_path / "x.safetensors")]) == 2
+    assert (
+        main(
+            [
+                "demos",
+                "collect",
+                "--env",
+                "traffic_junction",
+                "--demonstrator",
+                "nope",
+                "--out",
+                str(tmp_path / "x.safetensors"),
+            ]
+        )
+        == 2
+    )
 
 
 def test_bc_fits_the_demonstrator(tj_dataset):
@@ -145,7 +207,9 @@ def test_episode_assembler_and_buffer():
     asm2 = EpisodeAssembler(num_envs=2, gamma=0.5)
     asm2.load_arrays(saved)
     f2 = {"state.x": np.asarray([[3, 30]])}
-    rows, ret, _ = asm2.add_fields(f2, np.asarray([[0.0, 4.0]]), np.asarray([[False, True]]), {"won": np.zeros((1, 2))})
+    rows, ret, _ = asm2.add_fields(
+        f2, np.asarray([[0.0, 4.0]]), np.asarray([[False, True]]), {"won": np.zeros((1, 2))}
+    )
     np.testing.assert_array_equal(rows["state.x"], [10, 20, 30])
     np.testing.assert_allclose(ret, [1.0, 2.0, 4.0])
     np.testing.assert_array_equal(rows["t"], [0, 1, 2])
@@ -176,7 +240,10 @@ def _assemble_row_by_row(blocks, num_envs, gamma):
                         acc = r + gamma * acc
                         rets.append(acc)
                     returns.extend(reversed(rets))
-                    rows.extend({**f, "t": i, "episode_key": finished} for i, (f, _) in enumerate(pending[s]))
+                    rows.extend(
+                        {**f, "t": i, "episode_key": finished}
+                        for i, (f, _) in enumerate(pending[s])
+                    )
                     wins.append(won[t, s])
                     finished += 1
                     pending[s] = []
@@ -189,7 +256,10 @@ def test_episode_assembler_matches_row_by_row_reference_across_checkpoints():
         b, k, p = int(rng.integers(1, 6)), int(rng.integers(1, 6)), float(rng.uniform(0.05, 0.6))
         blocks = [
             (
-                {"state.x": rng.integers(0, 100, (k, b, 3)).astype(np.int16), "obs": rng.normal(size=(k, b)).astype(np.float32)},
+                {
+                    "state.x": rng.integers(0, 100, (k, b, 3)).astype(np.int16),
+                    "obs": rng.normal(size=(k, b)).astype(np.float32),
+                },
                 rng.normal(size=(k, b)).astype(np.float32),
                 rng.uniform(size=(k, b)) < p,
                 rng.integers(0, 2, (k, b)),
@@ -211,7 +281,9 @@ def test_episode_assembler_matches_row_by_row_reference_across_checkpoints():
                 asm = resumed
         rows, returns, wins = _assemble_row_by_row(blocks, b, 0.9)
         for name in got_rows:
-            np.testing.assert_array_equal(np.asarray(got_rows[name]), np.asarray([r[name] for r in rows]))
+            np.testing.assert_array_equal(
+                np.asarray(got_rows[name]), np.asarray([r[name] for r in rows])
+            )
         np.testing.assert_allclose(got_returns, returns, rtol=1e-6)
         assert got_wins == wins
 
@@ -227,7 +299,12 @@ def test_checkpoint_arrays_get_the_array_file_bound_not_the_small_file_one(tmp_p
     arrays, _ = C.load_checkpoint(path)
     assert arrays["buffer"].shape == (4096,)
     # A policy reads only its own arrays, not the buffer beside them.
-    C.save_checkpoint(tmp_path, 2, {"buffer.rows": np.zeros(8, np.float32), "actor.params.w": np.ones(2, np.float32)}, {"note": 2})
+    C.save_checkpoint(
+        tmp_path,
+        2,
+        {"buffer.rows": np.zeros(8, np.float32), "actor.params.w": np.ones(2, np.float32)},
+        {"note": 2},
+    )
     only, _ = C.load_checkpoint(C.latest_checkpoint(tmp_path), prefixes=("actor", "actor_average"))
     assert list(only) == ["actor.params.w"]
     monkeypatch.setattr(io, "MAX_ARRAY_FILE_BYTES", 1024)
@@ -236,9 +313,16 @@ def test_checkpoint_arrays_get_the_array_file_bound_not_the_small_file_one(tmp_p
 
 
 def test_checkpoint_round_trip_and_pruning(tmp_path):
-    tree = {"w": jnp.arange(6.0).reshape(2, 3), "flag": jnp.asarray([True, False]), "key": jax.random.key(7), "n": jnp.asarray(3, jnp.int32)}
+    tree = {
+        "w": jnp.arange(6.0).reshape(2, 3),
+        "flag": jnp.asarray([True, False]),
+        "key": jax.random.key(7),
+        "n": jnp.asarray(3, jnp.int32),
+    }
     for step in (1, 2, 3, 4):
-        C.save_checkpoint(tmp_path, step, C.prefixed(flatten_named(tree), "t"), {"note": step}, keep=2)
+        C.save_checkpoint(
+            tmp_path, step, C.prefixed(flatten_named(tree), "t"), {"note": step}, keep=2
+        )
     ck = C.list_checkpoints(tmp_path)
     assert [p.name for p in ck] == ["ckpt_000000003", "ckpt_000000004"]
     assert not [p for p in (tmp_path / "checkpoints").iterdir() if p.name.startswith(".tmp")]
@@ -259,7 +343,9 @@ def test_checkpoint_round_trip_and_pruning(tmp_path):
     with pytest.raises(C.CheckpointError, match="no best checkpoint"):
         C.find_checkpoint(tmp_path, "best")
     for step in (5, 6):
-        C.save_checkpoint(tmp_path, step, {"v": np.full(2, step, np.float32)}, {"note": step}, keep=2, name=C.BEST)
+        C.save_checkpoint(
+            tmp_path, step, {"v": np.full(2, step, np.float32)}, {"note": step}, keep=2, name=C.BEST
+        )
     C.save_checkpoint(tmp_path, 7, C.prefixed(flatten_named(tree), "t"), {"note": 7}, keep=2)
     best = C.find_checkpoint(tmp_path, "best")
     arrays, meta = C.load_checkpoint(best)
@@ -272,7 +358,10 @@ def test_checkpoint_round_trip_and_pruning(tmp_path):
 def test_weight_average_is_the_running_mean():
     from hybridmarl.algos.hybrid.train import _running_mean
 
-    snaps = [{"params": {"w": jnp.asarray([x, 2 * x])}, "batch_stats": {"m": jnp.asarray(-x)}} for x in (1.0, 2.0, 3.0, 6.0)]
+    snaps = [
+        {"params": {"w": jnp.asarray([x, 2 * x])}, "batch_stats": {"m": jnp.asarray(-x)}}
+        for x in (1.0, 2.0, 3.0, 6.0)
+    ]
     avg = snaps[0]
     for n, s in enumerate(snaps[1:], start=2):
         avg = _running_mean(avg, s, jnp.asarray(n, jnp.float32))
@@ -294,8 +383,14 @@ def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
     from hybridmarl.training.logger import RunLogger
 
     assert SELECT_EVAL_SEED != FINAL_EVAL_SEED
-    assert selection_key({"W": 0.5, "R": 0.1}) > selection_key({"W": 0.5, "R": 0.0}) > selection_key({"W": 0.4, "R": 0.9})
-    assert selection_key({"failure_rate": 0.2, "R": -5.0}) > selection_key({"failure_rate": 0.3, "R": 0.0})
+    assert (
+        selection_key({"W": 0.5, "R": 0.1})
+        > selection_key({"W": 0.5, "R": 0.0})
+        > selection_key({"W": 0.4, "R": 0.9})
+    )
+    assert selection_key({"failure_rate": 0.2, "R": -5.0}) > selection_key(
+        {"failure_rate": 0.3, "R": 0.0}
+    )
     cfg = HybridConfig().replace(eval_every=10)
     log = RunLogger(tmp_path, tensorboard=False)
     scores = iter([(0.2, 0.0), (0.5, -0.1), (0.5, -0.2), (0.5, 0.3)])
@@ -315,18 +410,34 @@ def test_periodic_eval_keeps_the_best_on_selection_states(tmp_path):
         assert pe.maybe_run(e, evaluate, actor_arrays(e), {"episodes": e}) is not None
     assert seeds == [SELECT_EVAL_SEED] * 3
     arrays, meta = C.load_checkpoint(C.find_checkpoint(tmp_path, "best"))
-    assert meta["episodes"] == 24 and arrays["actor.w"].tolist() == [24.0] * 3 and meta["selection"]["W"] == 0.5
+    assert (
+        meta["episodes"] == 24
+        and arrays["actor.w"].tolist() == [24.0] * 3
+        and meta["selection"]["W"] == 0.5
+    )
     # Resume from a checkpoint written at episode 31: the same best, next evaluation at 40.
     pe2 = PeriodicEval(cfg, tmp_path, log, 0)
     pe2.resume(pe.meta(), 31)
     assert pe2.maybe_run(39, evaluate, actor_arrays(39), {}) is None
-    assert pe2.maybe_run(40, evaluate, actor_arrays(40), {})["R"] == 0.3  # (0.5, 0.3) beats (0.5, -0.1)
+    assert (
+        pe2.maybe_run(40, evaluate, actor_arrays(40), {})["R"] == 0.3
+    )  # (0.5, 0.3) beats (0.5, -0.1)
     assert C.load_checkpoint(C.find_checkpoint(tmp_path, "best"))[1]["episodes"] == 40
     with open(tmp_path / "evals.csv") as f:
         rows = list(csv.DictReader(f))
-    assert [(int(r["episodes"]), int(r["best"])) for r in rows] == [(10, 1), (24, 1), (31, 0), (40, 1)]
+    assert [(int(r["episodes"]), int(r["best"])) for r in rows] == [
+        (10, 1),
+        (24, 1),
+        (31, 0),
+        (40, 1),
+    ]
     # --no-keep-best: evaluations are logged, nothing is saved.
-    off = PeriodicEval(HybridConfig().replace(eval_every=10, keep_best=False), tmp_path / "off", RunLogger(tmp_path / "off", tensorboard=False), 0)
+    off = PeriodicEval(
+        HybridConfig().replace(eval_every=10, keep_best=False),
+        tmp_path / "off",
+        RunLogger(tmp_path / "off", tensorboard=False),
+        0,
+    )
     scores = iter([(0.9, 0.0)])
     off.maybe_run(10, evaluate, actor_arrays(10), {})
     assert off.meta() == {} and not (tmp_path / "off" / "checkpoints").exists()
@@ -345,7 +456,9 @@ def test_exact_resume(tj_dataset, tmp_path, average):
 
     data = D.save_dataset(tj_dataset, tmp_path / "tj.safetensors")
     base = PRESETS["toy"]("traffic_junction").replace(
-        demonstrator=str(data), progress=False, checkpoint_every=4,
+        demonstrator=str(data),
+        progress=False,
+        checkpoint_every=4,
         actor_target="best" if average else "advantage",
         eval_every=0 if average else 3,  # periodic evaluation and the best policy resume too
         actor_average_from=2 if average else None,  # and so does the actor's weight average
@@ -359,19 +472,27 @@ def test_exact_resume(tj_dataset, tmp_path, average):
     train(base.replace(total_episodes=8, run_dir=str(tmp_path / "split"), resume=True))
     a, ma = load_checkpoint(latest_checkpoint(tmp_path / "straight"))
     b, mb = load_checkpoint(latest_checkpoint(tmp_path / "split"))
-    assert ma["episodes"] == mb["episodes"] == 8 and ma["critic_updates"] == mb["critic_updates"] == 2
+    assert (
+        ma["episodes"] == mb["episodes"] == 8 and ma["critic_updates"] == mb["critic_updates"] == 2
+    )
     assert set(a) == set(b)
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     if average:
         # The weight average is checkpointed, resumed exactly, and is what the run exports.
         assert mb["average_count"] >= 2 and "actor_average.params.Dense_0.kernel" in b
-        assert not np.array_equal(b["actor_average.params.Dense_0.kernel"], b["actor.params.Dense_0.kernel"])
+        assert not np.array_equal(
+            b["actor_average.params.Dense_0.kernel"], b["actor.params.Dense_0.kernel"]
+        )
         pol = load_policy(tmp_path / "split")
-        np.testing.assert_array_equal(pol.variables["params"]["Dense_0"]["kernel"], b["actor_average.params.Dense_0.kernel"])
+        np.testing.assert_array_equal(
+            pol.variables["params"]["Dense_0"]["kernel"], b["actor_average.params.Dense_0.kernel"]
+        )
         last = load_policy(tmp_path / "split", weights="last")  # 'hybridmarl eval --policy last'
         assert (pol.weights, last.weights) == ("average", "last")
-        np.testing.assert_array_equal(last.variables["params"]["Dense_0"]["kernel"], b["actor.params.Dense_0.kernel"])
+        np.testing.assert_array_equal(
+            last.variables["params"]["Dense_0"]["kernel"], b["actor.params.Dense_0.kernel"]
+        )
         final = json.loads((tmp_path / "straight" / "eval.json").read_text())
         assert final["average_of"] == mb["average_count"] and "failure_rate" in final["last_actor"]
     else:
@@ -379,11 +500,17 @@ def test_exact_resume(tj_dataset, tmp_path, average):
             load_policy(tmp_path / "split", weights="average")
         straight, split = (C.find_checkpoint(tmp_path / r, "best") for r in ("straight", "split"))
         (ba, bma), (bb, bmb) = C.load_checkpoint(straight), C.load_checkpoint(split)
-        assert bma["episodes"] == bmb["episodes"] and set(ba) == set(bb) and all(k.startswith("actor.") for k in ba)
+        assert (
+            bma["episodes"] == bmb["episodes"]
+            and set(ba) == set(bb)
+            and all(k.startswith("actor.") for k in ba)
+        )
         for k in ba:
             np.testing.assert_array_equal(ba[k], bb[k], err_msg=k)
         evals = [(tmp_path / r / "evals.csv").read_text() for r in ("straight", "split")]
-        assert evals[0] == evals[1] and len(evals[0].strip().splitlines()) == 1 + 2  # episodes 3(+), 6(+)
+        assert (
+            evals[0] == evals[1] and len(evals[0].strip().splitlines()) == 1 + 2
+        )  # episodes 3(+), 6(+)
         final = json.loads((tmp_path / "straight" / "eval.json").read_text())
         assert final["best"]["episodes"] == bma["episodes"] and "failure_rate" in final["best"]
     # Logs read as one uninterrupted run; wall and CPU time count across the resume.
@@ -393,7 +520,9 @@ def test_exact_resume(tj_dataset, tmp_path, average):
     with open(tmp_path / "split" / "train.csv") as f:
         timed = [(float(r["wall_s"]), float(r["cpu_s"])) for r in csv.DictReader(f)]
     walls, cpus = zip(*timed, strict=True)
-    assert list(walls) == sorted(walls) and list(cpus) == sorted(cpus) and walls[-1] > m4["wall_s"], timed
+    assert (
+        list(walls) == sorted(walls) and list(cpus) == sorted(cpus) and walls[-1] > m4["wall_s"]
+    ), timed
     # Logs read as one uninterrupted run, row for row (timings aside).
     for log in ("train.csv", "episodes.csv"):
         assert _log_rows(tmp_path / "split" / log) == _log_rows(tmp_path / "straight" / log), log
@@ -429,10 +558,16 @@ def _resume_after_ctrl_c(straight, run_dir, base) -> None:
         mp.setenv(ck.PAUSE_ENV, "chunk:2")
         mp.setattr(ck, "_reached", {})
         threading.Thread(target=interrupt_when_paused, daemon=True).start()
-        with pytest.raises(Interrupted, match=rf"checkpoint saved; continue with: hybridmarl train --run-dir {run_dir} --resume"):
+        with pytest.raises(
+            Interrupted,
+            match=rf"checkpoint saved; continue with: hybridmarl train --run-dir {run_dir} --resume",
+        ):
             train(base.replace(total_episodes=8, run_dir=str(run_dir)))
     _, meta = ck.load_checkpoint(ck.list_checkpoints(run_dir)[-1])
-    assert meta["iterations"] == 2 and meta["log_rows"]["train"] == len(_log_rows(run_dir / "train.csv")) == 2
+    assert (
+        meta["iterations"] == 2
+        and meta["log_rows"]["train"] == len(_log_rows(run_dir / "train.csv")) == 2
+    )
     train(base.replace(total_episodes=8, run_dir=str(run_dir), resume=True))
     a, _ = ck.load_checkpoint(ck.list_checkpoints(straight)[-1])
     b, _ = ck.load_checkpoint(ck.list_checkpoints(run_dir)[-1])
@@ -469,11 +604,16 @@ def _resume_after_a_kill(straight, killed, base) -> None:
         if int(later.name[5:]) > int(middle.name[5:]):
             shutil.rmtree(later)
     (killed / "eval.json").unlink()
-    assert len(_log_rows(killed / "train.csv")) > json.loads((middle / "meta.json").read_text())["log_rows"]["train"]
+    assert (
+        len(_log_rows(killed / "train.csv"))
+        > json.loads((middle / "meta.json").read_text())["log_rows"]["train"]
+    )
     partial = killed / "checkpoints" / ".tmp_ckpt_000000008_x1"
     partial.mkdir()
     (partial / "arrays.safetensors").write_bytes(bytes(4096))
-    (killed / LOCK_NAME).write_text(json.dumps({"pid": 2**22 + 7, "host": "gone"}))  # above Linux's pid_max
+    (killed / LOCK_NAME).write_text(
+        json.dumps({"pid": 2**22 + 7, "host": "gone"})
+    )  # above Linux's pid_max
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
         train(base.replace(total_episodes=8, run_dir=str(killed), resume=True))
@@ -494,7 +634,9 @@ def test_tj_time_penalty_reaches_the_task_and_costs_tau_per_car():
 
     spec = HybridConfig().replace(env="traffic_junction", time_penalty=True).task_spec()
     assert spec.time_penalty and "time penalty" in spec.label()
-    assert TaskSpec.from_dict({"env": "traffic_junction"}).time_penalty is False  # older run metadata
+    assert (
+        TaskSpec.from_dict({"env": "traffic_junction"}).time_penalty is False
+    )  # older run metadata
     on, off = make_task(spec), make_task(TJ)
     assert bool(on.params.time_penalty) and not bool(off.params.time_penalty)
     demo = off.demonstrator("always-gas")
@@ -516,7 +658,9 @@ def test_tj_replay_reports_the_time_penalty():
     _, off = record_tj_episode("always-gas", 0.3, seed=2, max_steps=15, cell_px=4)
     _, on = record_tj_episode("always-gas", 0.3, seed=2, max_steps=15, cell_px=4, time_penalty=True)
     assert on["time_penalty"] and not off["time_penalty"]
-    assert on["arrivals"] == off["arrivals"] and on["collisions"] == off["collisions"]  # same episode
+    assert (
+        on["arrivals"] == off["arrivals"] and on["collisions"] == off["collisions"]
+    )  # same episode
     assert on["return"] < off["return"]  # cars were on the road, each paying -0.01·τ per step
 
 
@@ -526,19 +670,28 @@ def test_time_limit_stops_alg2_and_still_evaluates(tmp_path, capsys):
     from hybridmarl.algos.hybrid import PRESETS, train
     from hybridmarl.training.checkpoint import latest_checkpoint, load_checkpoint
 
-    cfg = PRESETS["toy"]("traffic_junction").replace(progress=False, total_episodes=10_000, time_limit_min=1e-6, run_dir=str(tmp_path / "run"))
+    cfg = PRESETS["toy"]("traffic_junction").replace(
+        progress=False, total_episodes=10_000, time_limit_min=1e-6, run_dir=str(tmp_path / "run")
+    )
     train(cfg)
     assert "time limit of 1e-06 min reached" in capsys.readouterr().out
     _, meta = load_checkpoint(latest_checkpoint(tmp_path / "run"))
     assert meta["episodes"] < 10_000 and meta["iterations"] == 1  # one chunk of Alg. 2
     res = json.loads((tmp_path / "run" / "eval.json").read_text())
-    assert res["time_limited"] is True and res["episodes"] == meta["episodes"] and "failure_rate" in res
+    assert (
+        res["time_limited"] is True
+        and res["episodes"] == meta["episodes"]
+        and "failure_rate" in res
+    )
 
 
 def test_progress_status_before_and_after_the_first_episode():
     from hybridmarl.training.logger import recent_status
 
-    assert recent_status({"won": float("nan")}, "won", "terminal_hp_reward") == "won@100 -  terminal_hp_reward@100 -"
-    assert recent_status({"won": 0.25, "terminal_hp_reward": -0.1}, "won", "terminal_hp_reward") == (
-        "won@100 0.25  terminal_hp_reward@100 -0.100"
+    assert (
+        recent_status({"won": float("nan")}, "won", "terminal_hp_reward")
+        == "won@100 -  terminal_hp_reward@100 -"
     )
+    assert recent_status(
+        {"won": 0.25, "terminal_hp_reward": -0.1}, "won", "terminal_hp_reward"
+    ) == ("won@100 0.25  terminal_hp_reward@100 -0.100")

@@ -36,5 +36,8 @@ def test_json_and_checkpoint_modes_follow_umask(tmp_path, umask_022):
 def test_dataset_mode_follows_umask(tmp_path, umask_022):
     from hybridmarl.training.demos import Dataset, save_dataset
 
-    save_dataset(Dataset(arrays={"obs": np.zeros((2, 3), np.float32)}, meta={"format": "test"}), tmp_path / "d.safetensors")
+    save_dataset(
+        Dataset(arrays={"obs": np.zeros((2, 3), np.float32)}, meta={"format": "test"}),
+        tmp_path / "d.safetensors",
+    )
     assert _mode(tmp_path / "d.safetensors") == 0o644

@@ -16,13 +16,26 @@ from hybridmarl.training.task import make_task
 
 
 def test_tiny_graded_set_round_trips_through_the_loader(tmp_path):
-    spec = GradedSpec(scenario="m3v3", scripts=("nokdps", "attack-closest"), noise=0.5, num_observations=96, eval_battles=16, num_envs=8, seed=3)
+    spec = GradedSpec(
+        scenario="m3v3",
+        scripts=("nokdps", "attack-closest"),
+        noise=0.5,
+        num_observations=96,
+        eval_battles=16,
+        num_envs=8,
+        seed=3,
+    )
     lines: list[str] = []
     manifest = generate_graded(tmp_path, spec, log=lines.append)
     assert len(lines) == 4
     assert load_manifest(tmp_path) == json.loads(json.dumps(manifest))
     entries = manifest["datasets"]
-    assert [e["name"] for e in sorted(entries, key=lambda e: e["name"])] == ["attack-closest", "attack-closest-eps0.5", "nokdps", "nokdps-eps0.5"]
+    assert [e["name"] for e in sorted(entries, key=lambda e: e["name"])] == [
+        "attack-closest",
+        "attack-closest-eps0.5",
+        "nokdps",
+        "nokdps-eps0.5",
+    ]
     assert [e["rank"] for e in entries] == [1, 2, 3, 4]
     assert [e["W"] for e in entries] == sorted((e["W"] for e in entries), reverse=True)
     assert "| 1 |" in tier_table(manifest)
@@ -33,7 +46,9 @@ def test_tiny_graded_set_round_trips_through_the_loader(tmp_path):
         ds = load_dataset(tmp_path / e["file"], expect=task)  # the ordinary loader validates it
         assert ds.size == 96 and ds.meta["demonstrator"] == e["demonstrator"]
         assert ds.meta["graded"]["rank"] == e["rank"] and ds.meta["task"]["scenario"] == "m3v3"
-        assert e["eval_battles"] == 16 and (16 * e["W"]).is_integer() and 0.0 <= e["dataset_W"] <= 1.0
+        assert (
+            e["eval_battles"] == 16 and (16 * e["W"]).is_integer() and 0.0 <= e["dataset_W"] <= 1.0
+        )
         assert e["episodes"] == int(ds.arrays["episode"].max()) + 1
         # The recorded actions are the named script's (clean) or mostly its (noisy).
         states = state_at(ds, np.arange(ds.size), task)
@@ -44,7 +59,9 @@ def test_tiny_graded_set_round_trips_through_the_loader(tmp_path):
         if e["noise"] == 0:
             assert differ == 0.0, e["name"]
         else:
-            assert 0.0 < differ < 0.5, e["name"]  # a random legal action can still equal the script's
+            assert 0.0 < differ < 0.5, e[
+                "name"
+            ]  # a random legal action can still equal the script's
 
 
 @pytest.mark.parametrize(

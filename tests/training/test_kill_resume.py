@@ -52,7 +52,9 @@ def spawn_env(tmp_path_factory) -> Iterator[dict[str, str]]:
     import jax
     from jax._src import compilation_cache
 
-    cache_dir = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(tmp_path_factory.mktemp("jax_cache"))
+    cache_dir = os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(
+        tmp_path_factory.mktemp("jax_cache")
+    )
     options = {**CACHE_OPTIONS, "jax_compilation_cache_dir": cache_dir}
     # One XLA host device, as in this process, so both compute the same numbers. XLA_FLAGS is
     # part of the cache key, so this process states the same (true) device count while the
@@ -93,13 +95,21 @@ def straight(spawn_env, tmp_path_factory) -> Path:
 def _spawn(env: dict[str, str], run_dir: Path, pause: str) -> subprocess.Popen:
     """``hybridmarl train`` in its own process, paused at ``pause`` (returns once it is there)."""
     cmd = [sys.executable, "-m", "hybridmarl.cli", "train", *TOY, "--run-dir", str(run_dir)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**env, PAUSE_ENV: pause})
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**env, PAUSE_ENV: pause},
+    )
     assert proc.stderr is not None
     for line in proc.stderr:
         if line.startswith("hybridmarl: paused at"):
             return proc
     proc.wait()
-    raise AssertionError(f"the training process ended (rc {proc.returncode}) before pausing at {pause}")
+    raise AssertionError(
+        f"the training process ended (rc {proc.returncode}) before pausing at {pause}"
+    )
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
@@ -117,7 +127,9 @@ def _assert_same_run(run: Path, straight: Path) -> None:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     for log in ("train.csv", "episodes.csv"):
         assert _rows(run / log) == _rows(straight / log), log
-    assert not (run / LOCK_NAME).exists() and not any(p.name.startswith(".") for p in (run / "checkpoints").iterdir())
+    assert not (run / LOCK_NAME).exists() and not any(
+        p.name.startswith(".") for p in (run / "checkpoints").iterdir()
+    )
 
 
 def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(spawn_env, straight, tmp_path, capsys):
@@ -128,12 +140,19 @@ def test_ctrl_c_saves_a_checkpoint_and_says_how_to_resume(spawn_env, straight, t
     assert proc.returncode == 130, (out, err)
     assert "Traceback" not in err
     last = err.strip().splitlines()[-1]
-    assert last.startswith("hybridmarl: interrupted at") and f"hybridmarl train --run-dir {run} --resume" in last, err
+    assert (
+        last.startswith("hybridmarl: interrupted at")
+        and f"hybridmarl train --run-dir {run} --resume" in last
+    ), err
     # The checkpoint is the state after the chunk it stopped in, with the logs written up to it.
     newest = list_checkpoints(run)[-1]
     _, meta = load_checkpoint(newest)
-    assert meta["iterations"] == 3 and meta["log_rows"]["train"] == len(_rows(run / "train.csv")) == 3
-    assert not (run / LOCK_NAME).exists() and not any(p.name.startswith(".") for p in (run / "checkpoints").iterdir())
+    assert (
+        meta["iterations"] == 3 and meta["log_rows"]["train"] == len(_rows(run / "train.csv")) == 3
+    )
+    assert not (run / LOCK_NAME).exists() and not any(
+        p.name.startswith(".") for p in (run / "checkpoints").iterdir()
+    )
     assert main(["train", "--run-dir", str(run), "--resume", "--no-progress"]) == 0
     assert "resumed" in capsys.readouterr().out
     _assert_same_run(run, straight)
@@ -165,7 +184,9 @@ def _shown_scalars(tb_dir: Path) -> dict[str, list[tuple[int, float]]]:
             event = Event.FromString(data[at + 12 : at + 12 + size])
             at += 12 + size + 4
             if event.HasField("session_log") and event.session_log.status == SessionLog.START:
-                shown = {tag: [p for p in points if p[0] < event.step] for tag, points in shown.items()}
+                shown = {
+                    tag: [p for p in points if p[0] < event.step] for tag, points in shown.items()
+                }
             for value in event.summary.value:
                 if value.HasField("simple_value"):
                     shown.setdefault(value.tag, []).append((event.step, value.simple_value))
@@ -196,7 +217,13 @@ def test_tensorboard_after_resume_shows_the_run_as_if_it_never_stopped(straight,
         assert resumed_above == straight_above, tag
 
 
-def _around(points: list[tuple[int, float]], step: int, steps_only: bool) -> tuple[list, list, list]:
+def _around(
+    points: list[tuple[int, float]], step: int, steps_only: bool
+) -> tuple[list, list, list]:
     """``points`` below, at and above ``step`` (their steps only, with ``steps_only``)."""
     kept = [(s, s if steps_only else v) for s, v in points]
-    return [p for p in kept if p[0] < step], [p for p in kept if p[0] == step], [p for p in kept if p[0] > step]
+    return (
+        [p for p in kept if p[0] < step],
+        [p for p in kept if p[0] == step],
+        [p for p in kept if p[0] > step],
+    )

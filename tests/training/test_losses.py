@@ -69,7 +69,9 @@ def test_actor_loss_eq8_by_hand():
     # Weights: a zero-weight row does not count, the mean is over weighted rows.
     two = jnp.concatenate([logits, logits])
     w = jnp.asarray([1.0, 0.0])
-    assert float(actor_loss(two, jnp.concatenate([adv, 10 * adv]), jnp.concatenate([legal, legal]), w)) == pytest.approx(expected, rel=1e-6)
+    assert float(
+        actor_loss(two, jnp.concatenate([adv, 10 * adv]), jnp.concatenate([legal, legal]), w)
+    ) == pytest.approx(expected, rel=1e-6)
 
 
 def test_gradient_step_raises_best_action_probability():
@@ -87,7 +89,9 @@ def test_bc_and_critic_losses_by_hand():
     logits = jnp.asarray([[0.0, 0.0, 100.0]])
     legal = jnp.asarray([[True, True, False]])
     assert float(bc_loss(logits, jnp.asarray([0]), legal)) == pytest.approx(math.log(2.0), rel=1e-6)
-    assert float(critic_loss(jnp.asarray([1.0, 2.0]), jnp.asarray([0.0, 4.0]))) == pytest.approx(2.5)
+    assert float(critic_loss(jnp.asarray([1.0, 2.0]), jnp.asarray([0.0, 4.0]))) == pytest.approx(
+        2.5
+    )
 
 
 def test_legal_masking():
@@ -131,8 +135,16 @@ def test_sgd_step_lr_scale_by_hand(scale):
     def loss_fn(params, batch_stats):
         return 0.5 * jnp.sum(params["w"] ** 2), (batch_stats, None)
 
-    for tx, want in ((optax.sgd(0.1), [1.0 - 0.1 * scale, -2.0 + 0.2 * scale]), (optax.adam(0.1), [1.0 - 0.1 * scale, -2.0 + 0.1 * scale])):
-        net = NetState(params={"w": w}, batch_stats={}, opt_state=tx.init({"w": w}), step=jnp.zeros((), jnp.int32))
+    for tx, want in (
+        (optax.sgd(0.1), [1.0 - 0.1 * scale, -2.0 + 0.2 * scale]),
+        (optax.adam(0.1), [1.0 - 0.1 * scale, -2.0 + 0.1 * scale]),
+    ):
+        net = NetState(
+            params={"w": w},
+            batch_stats={},
+            opt_state=tx.init({"w": w}),
+            step=jnp.zeros((), jnp.int32),
+        )
         out, loss, _ = sgd_step(net, tx, loss_fn, jnp.float32(scale))
         np.testing.assert_allclose(np.asarray(out.params["w"]), want, rtol=1e-6)
         assert float(loss) == 2.5 and int(out.step) == 1

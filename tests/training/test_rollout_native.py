@@ -52,7 +52,9 @@ def test_native_chunk_equals_pool_steps(enemy="attack-weakest", script="attack-c
         ref, got = flatten_named(out_j["state"]), flatten_named(out_n["state"])
         assert sorted(got) == sorted(ref)
         for name in ref:
-            np.testing.assert_array_equal(got[name], ref[name], err_msg=f"chunk {chunk}: state.{name}")
+            np.testing.assert_array_equal(
+                got[name], ref[name], err_msg=f"chunk {chunk}: state.{name}"
+            )
         np.testing.assert_array_equal(out_n["reward"], out_j["reward"])
         np.testing.assert_array_equal(out_n["done"], out_j["done"])
         assert list(out_n["stats"]) == list(out_j["stats"])
@@ -89,8 +91,14 @@ def test_learner_picks_the_engine_of_phase_2():
 
     cfg = PRESETS["quick-paper"]("combat").replace(scenario="m5v5", num_envs=NUM_ENVS)
     task = make_task(cfg.task_spec())
-    assert isinstance(build_learner(task, cfg.replace(engine="native"), "attack-closest").demo_chunk, NativeScriptRollout)
-    assert not isinstance(build_learner(task, cfg.replace(engine="jax"), "attack-closest").demo_chunk, NativeScriptRollout)
+    assert isinstance(
+        build_learner(task, cfg.replace(engine="native"), "attack-closest").demo_chunk,
+        NativeScriptRollout,
+    )
+    assert not isinstance(
+        build_learner(task, cfg.replace(engine="jax"), "attack-closest").demo_chunk,
+        NativeScriptRollout,
+    )
     assert native_rollout_support(task, "attack-closest") is None
     assert "script" in (native_rollout_support(task, "dataset:demos.npz") or "")
 
@@ -100,7 +108,10 @@ def test_demos_collect_same_dataset_on_both_engines():
 
     # Other scripts than the chunk test's, on both sides.
     spec = PRESETS["quick-paper"]("combat").replace(scenario="m5v5", enemy="attack-dps").task_spec()
-    runs = {e: D.collect(spec, "nokdps", 300, seed=3, num_envs=NUM_ENVS, chunk=STEPS, engine=e) for e in ("native", "jax")}
+    runs = {
+        e: D.collect(spec, "nokdps", 300, seed=3, num_envs=NUM_ENVS, chunk=STEPS, engine=e)
+        for e in ("native", "jax")
+    }
     native, ref = runs["native"], runs["jax"]
     assert sorted(native.arrays) == sorted(ref.arrays)
     for name, v in ref.arrays.items():

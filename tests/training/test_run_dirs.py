@@ -30,7 +30,9 @@ SRC = str(Path(__file__).resolve().parents[2] / "src")
 def _toy(run_dir: Path, **changes):
     from hybridmarl.algos.hybrid import PRESETS
 
-    return PRESETS["toy"]("combat").replace(scenario="m3v3", run_dir=str(run_dir), progress=False, **changes)
+    return PRESETS["toy"]("combat").replace(
+        scenario="m3v3", run_dir=str(run_dir), progress=False, **changes
+    )
 
 
 def _one_line(capsys) -> str:
@@ -46,7 +48,9 @@ def _holder(lock_dir: Path) -> subprocess.Popen:
         "RunLock(Path(sys.argv[1])).acquire(); print('locked', flush=True); time.sleep(600)"
     )
     env = {**os.environ, "PYTHONPATH": SRC}
-    proc = subprocess.Popen([sys.executable, "-c", code, str(lock_dir)], stdout=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, str(lock_dir)], stdout=subprocess.PIPE, text=True, env=env
+    )
     assert proc.stdout is not None and proc.stdout.readline().strip() == "locked"
     return proc
 
@@ -55,7 +59,16 @@ def test_a_second_process_is_refused_and_a_dead_ones_lock_taken_over(tmp_path, c
     run = tmp_path / "run"
     holder = _holder(run)
     try:
-        argv = ["train", "--preset", "toy", "--scenario", "m3v3", "--no-progress", "--run-dir", str(run)]
+        argv = [
+            "train",
+            "--preset",
+            "toy",
+            "--scenario",
+            "m3v3",
+            "--no-progress",
+            "--run-dir",
+            str(run),
+        ]
         assert main(argv) == 2
         line = _one_line(capsys)
         assert f"is in use by process {holder.pid}" in line and LOCK_NAME in line, line
@@ -77,12 +90,27 @@ def test_a_second_process_is_refused_and_a_dead_ones_lock_taken_over(tmp_path, c
 
 def test_resume_on_a_directory_that_is_not_a_run(tmp_path, capsys):
     typo = tmp_path / "rnus"
-    assert main(["train", "--preset", "toy", "--no-progress", "--run-dir", str(typo), "--resume"]) == 2
+    assert (
+        main(["train", "--preset", "toy", "--no-progress", "--run-dir", str(typo), "--resume"]) == 2
+    )
     line = _one_line(capsys)
     assert str(typo) in line and "no such run directory" in line, line
     assert not typo.exists()
     (tmp_path / "empty").mkdir()
-    assert main(["train", "--preset", "toy", "--no-progress", "--run-dir", str(tmp_path / "empty"), "--resume"]) == 2
+    assert (
+        main(
+            [
+                "train",
+                "--preset",
+                "toy",
+                "--no-progress",
+                "--run-dir",
+                str(tmp_path / "empty"),
+                "--resume",
+            ]
+        )
+        == 2
+    )
     assert "not a run directory" in _one_line(capsys)
     assert main(["eval", "--run-dir", str(typo)]) == 2
     assert "no such run directory" in _one_line(capsys)
@@ -94,12 +122,30 @@ def test_a_resume_that_changes_training_is_refused(tmp_path, capsys):
 
     run = tmp_path / "run"
     cfg = _toy(run)
-    save_checkpoint(run, 4, {"x": np.zeros(1, np.float32)}, {"config": config_to_dict(cfg), "task": cfg.task_spec().to_dict()})
-    for field, value in (("critic_lr", 0.5), ("seed", 3), ("actor_hidden", (8, 8)), ("num_envs", 8), ("enemy", "attack-closest")):
-        with pytest.raises(CheckpointError, match=rf"trained with {field} = .*cannot resume it with {field} = "):
+    save_checkpoint(
+        run,
+        4,
+        {"x": np.zeros(1, np.float32)},
+        {"config": config_to_dict(cfg), "task": cfg.task_spec().to_dict()},
+    )
+    for field, value in (
+        ("critic_lr", 0.5),
+        ("seed", 3),
+        ("actor_hidden", (8, 8)),
+        ("num_envs", 8),
+        ("enemy", "attack-closest"),
+    ):
+        with pytest.raises(
+            CheckpointError, match=rf"trained with {field} = .*cannot resume it with {field} = "
+        ):
             Run("hybrid", cfg.replace(resume=True, **{field: value}))
     # Budgets, cadences and logging may change.
-    with Run("hybrid", cfg.replace(resume=True, total_episodes=50, eval_every=5, time_limit_min=1.0, keep_checkpoints=1)):
+    with Run(
+        "hybrid",
+        cfg.replace(
+            resume=True, total_episodes=50, eval_every=5, time_limit_min=1.0, keep_checkpoints=1
+        ),
+    ):
         pass
     assert not (run / LOCK_NAME).exists()
 
@@ -116,15 +162,33 @@ def test_a_resume_that_changes_training_is_refused(tmp_path, capsys):
         (["train", "--e-update", "0"], "--e-update must be at least 1, got 0"),
         (["train", "--actor-lr", "nan"], "--actor-lr must be a finite number > 0, got nan"),
         (["train", "--critic-lr", "inf"], "--critic-lr must be a finite number > 0, got inf"),
-        (["train", "--actor-hidden", "16", "0"], "--actor-hidden must be a non-empty list of layer sizes"),
+        (
+            ["train", "--actor-hidden", "16", "0"],
+            "--actor-hidden must be a non-empty list of layer sizes",
+        ),
         (["train", "--total-episodes", "-5"], "--total-episodes must be at least 1, got -5"),
-        (["train", "--algo", "dqfd", "--eps-start", "1.5"], "--eps-start must be a number in [0, 1], got 1.5"),
+        (
+            ["train", "--algo", "dqfd", "--eps-start", "1.5"],
+            "--eps-start must be a number in [0, 1], got 1.5",
+        ),
         (["train", "--algo", "bc", "--bc-steps", "0"], "--bc-steps must be at least 1, got 0"),
-        (["train", "--env", "traffic_junction", "--p-arrive", "5"], "--p-arrive must be a number in [0, 1], got 5.0"),
-        (["demos", "collect", "--num-envs", "0", "--n", "100"], "--num-envs must be at least 1, got 0"),
+        (
+            ["train", "--env", "traffic_junction", "--p-arrive", "5"],
+            "--p-arrive must be a number in [0, 1], got 5.0",
+        ),
+        (
+            ["demos", "collect", "--num-envs", "0", "--n", "100"],
+            "--num-envs must be at least 1, got 0",
+        ),
         (["demos", "collect", "--gamma", "-0.5"], "--gamma must be a number in [0, 1), got -0.5"),
-        (["eval", "--script", "attack-closest", "--env", "traffic_junction", "--p-arrive", "5"], "--p-arrive must be a number in [0, 1], got 5.0"),
-        (["eval", "--script", "attack-closest", "--seed", "-1"], "--seed must be an integer in [0, 4294967295], got -1"),
+        (
+            ["eval", "--script", "attack-closest", "--env", "traffic_junction", "--p-arrive", "5"],
+            "--p-arrive must be a number in [0, 1], got 5.0",
+        ),
+        (
+            ["eval", "--script", "attack-closest", "--seed", "-1"],
+            "--seed must be an integer in [0, 4294967295], got -1",
+        ),
         (["battle", "--stalemate-limit", "-1"], "--stalemate-limit must be at least 0, got -1"),
         (["battle", "--max-turns", "0"], "--max-turns must be at least 1, got 0"),
         (["battle", "--batch-size", "0"], "--batch-size must be at least 1, got 0"),
@@ -135,18 +199,28 @@ def test_a_resume_that_changes_training_is_refused(tmp_path, capsys):
 )
 def test_invalid_numbers_are_refused_before_any_work(tmp_path, capsys, argv, message):
     out = tmp_path / "out"
-    extra = {"train": ["--preset", "toy", "--no-progress", "--run-dir", str(out)], "demos": ["--out", str(out)], "quickstart": ["--run-dir", str(out)]}
+    extra = {
+        "train": ["--preset", "toy", "--no-progress", "--run-dir", str(out)],
+        "demos": ["--out", str(out)],
+        "quickstart": ["--run-dir", str(out)],
+    }
     t0 = time.perf_counter()
     rc = main([*argv, *extra.get(argv[0], [])])
     assert rc == 2
-    assert time.perf_counter() - t0 < 30  # refused at once, not after a training run or a battle series
+    assert (
+        time.perf_counter() - t0 < 30
+    )  # refused at once, not after a training run or a battle series
     if message is not None:
         assert message in _one_line(capsys)
     assert not out.exists()
 
 
 def test_out_pointing_at_a_directory_is_refused_before_the_games(tmp_path, capsys):
-    for argv in (["battle", "--n", "4", "--no-progress"], ["eval", "--script", "attack-closest", "--n", "4"], ["demos", "collect", "--n", "10"]):
+    for argv in (
+        ["battle", "--n", "4", "--no-progress"],
+        ["eval", "--script", "attack-closest", "--n", "4"],
+        ["demos", "collect", "--n", "10"],
+    ):
         assert main([*argv, "--out", str(tmp_path)]) == 2
         line = _one_line(capsys)
         assert "--out" in line and "is a directory" in line, line
@@ -154,10 +228,18 @@ def test_out_pointing_at_a_directory_is_refused_before_the_games(tmp_path, capsy
 
 def test_size_guard_answers_at_once(tmp_path, capsys):
     t0 = time.perf_counter()
-    assert main(["battle", "--scenario", "m5v5", "--n", "10000000", "--out", str(tmp_path / "r.json")]) == 2
+    assert (
+        main(["battle", "--scenario", "m5v5", "--n", "10000000", "--out", str(tmp_path / "r.json")])
+        == 2
+    )
     assert time.perf_counter() - t0 < 2.0
     line = _one_line(capsys)
-    assert "--n 10000000 battles of 10 units" in line and "would take about" in line and "--yes" in line and "GB" in line, line
+    assert (
+        "--n 10000000 battles of 10 units" in line
+        and "would take about" in line
+        and "--yes" in line
+        and "GB" in line
+    ), line
     assert not (tmp_path / "r.json").exists()
     t0 = time.perf_counter()
     assert main(["trace", "--index", "100000000"]) == 2
@@ -171,18 +253,77 @@ def test_long_series_are_played_in_chunks(tmp_path, capsys, monkeypatch):
     import hybridmarl.cli.engine as cli_engine
 
     one = tmp_path / "one.json"
-    assert main(["battle", "--scenario", "m2v2", "--n", "3", "--no-progress", "--engine", "native", "--out", str(one)]) == 0
+    assert (
+        main(
+            [
+                "battle",
+                "--scenario",
+                "m2v2",
+                "--n",
+                "3",
+                "--no-progress",
+                "--engine",
+                "native",
+                "--out",
+                str(one),
+            ]
+        )
+        == 0
+    )
     monkeypatch.setattr(cli_engine, "CHUNK_UNITS", 12)  # 3 battles of m2v2 a chunk
     two = tmp_path / "two.json"
-    assert main(["battle", "--scenario", "m2v2", "--n", "7", "--no-progress", "--engine", "native", "--swap", "--out", str(two)]) == 0
+    assert (
+        main(
+            [
+                "battle",
+                "--scenario",
+                "m2v2",
+                "--n",
+                "7",
+                "--no-progress",
+                "--engine",
+                "native",
+                "--swap",
+                "--out",
+                str(two),
+            ]
+        )
+        == 0
+    )
     a, b = json.loads(one.read_text()), json.loads(two.read_text())
-    assert b["results"][:3] == a["results"] and len(b["results"]) == 7 and len(b["swapped"]["results"]) == 7
-    assert b["summary"]["battles"] == 7 and b["swapped"]["summary"]["battles"] == 7 and b["setting"] == "sparcraft"
+    assert (
+        b["results"][:3] == a["results"]
+        and len(b["results"]) == 7
+        and len(b["swapped"]["results"]) == 7
+    )
+    assert (
+        b["summary"]["battles"] == 7
+        and b["swapped"]["summary"]["battles"] == 7
+        and b["setting"] == "sparcraft"
+    )
     wins = sum(r["winner"] == 0 for r in b["results"])
     assert b["summary"]["p0_wins"] == wins
     monkeypatch.setattr(cli_engine, "CONFIRM_UNIT_BATTLES", 10)  # --yes passes the guard
-    assert main(["battle", "--scenario", "m2v2", "--n", "4", "--no-progress", "--engine", "native"]) == 2
-    assert main(["battle", "--scenario", "m2v2", "--n", "4", "--no-progress", "--engine", "native", "--yes"]) == 0
+    assert (
+        main(["battle", "--scenario", "m2v2", "--n", "4", "--no-progress", "--engine", "native"])
+        == 2
+    )
+    assert (
+        main(
+            [
+                "battle",
+                "--scenario",
+                "m2v2",
+                "--n",
+                "4",
+                "--no-progress",
+                "--engine",
+                "native",
+                "--yes",
+            ]
+        )
+        == 0
+    )
 
 
 def test_every_preset_keeps_the_rules():
@@ -198,7 +339,6 @@ def test_every_preset_keeps_the_rules():
         check_config(type(mod.PRESETS["toy"]("combat"))())
 
 
-
 def test_nan_counters_survive_a_checkpoint_as_json(tmp_path):
     """A counter that is NaN when a checkpoint is saved (the critic's loss before its first fit,
     in the "w/o D" presets) is written as JSON null, read back by the strict reader, and
@@ -207,10 +347,16 @@ def test_nan_counters_survive_a_checkpoint_as_json(tmp_path):
     from hybridmarl.training.checkpoint import find_checkpoint, load_checkpoint
 
     def state() -> HybridState:
-        return HybridState(pool=None, key=None, assembler=None, actor=None, critic=None, clone=None, buffer=None)  # type: ignore[arg-type]
+        return HybridState(
+            pool=None, key=None, assembler=None, actor=None, critic=None, clone=None, buffer=None
+        )  # type: ignore[arg-type]
 
     saved = state()
-    saved.episodes, saved.critic_loss, saved.demo_stats = 40, float("nan"), {"won": 0.5, "R": float("nan")}
+    saved.episodes, saved.critic_loss, saved.demo_stats = (
+        40,
+        float("nan"),
+        {"won": 0.5, "R": float("nan")},
+    )
     save_checkpoint(tmp_path, 40, {"x": np.zeros(1, np.float32)}, saved.meta())
     text = (tmp_path / "checkpoints" / "ckpt_000000040" / "meta.json").read_text()
     assert "NaN" not in text and '"critic_loss": null' in text

@@ -34,9 +34,15 @@ TURN = 21  # a mid-battle engine turn of m5v5 seed 0: some units dead, some woun
 
 
 def _chromium() -> str:
-    path = os.environ.get("HYBRIDMARL_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    path = (
+        os.environ.get("HYBRIDMARL_CHROMIUM")
+        or shutil.which("chromium")
+        or shutil.which("chromium-browser")
+    )
     if path is None:
-        pytest.fail("no chromium executable: install Debian's chromium (apt-get install chromium) or set HYBRIDMARL_CHROMIUM")
+        pytest.fail(
+            "no chromium executable: install Debian's chromium (apt-get install chromium) or set HYBRIDMARL_CHROMIUM"
+        )
     return path
 
 
@@ -50,27 +56,43 @@ def browser_page(tmp_path_factory):
     profile = tmp_path_factory.mktemp("chromium-profile")
     with sync_playwright() as p:
         context = p.chromium.launch_persistent_context(
-            str(profile), executable_path=_chromium(), args=LAUNCH_FLAGS, headless=True,
+            str(profile),
+            executable_path=_chromium(),
+            args=LAUNCH_FLAGS,
+            headless=True,
             viewport={"width": 1400, "height": 820},
         )
         page = context.new_page()
         errors: list[str] = []
         page.on("pageerror", lambda e: errors.append(str(e)))
         page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-        page.on("request", lambda r: errors.append(f"network request {r.url}") if not r.url.startswith(("file:", "data:")) else None)
+        page.on(
+            "request",
+            lambda r: (
+                errors.append(f"network request {r.url}")
+                if not r.url.startswith(("file:", "data:"))
+                else None
+            ),
+        )
         yield page, errors
         context.close()
 
 
 def _embedded(path: Path) -> dict:
-    m = re.search(r'<script type="application/json" id="replay-data">(.*?)</script>', path.read_text(encoding="utf-8"), re.S)
+    m = re.search(
+        r'<script type="application/json" id="replay-data">(.*?)</script>',
+        path.read_text(encoding="utf-8"),
+        re.S,
+    )
     assert m, "no embedded replay data"
     return json.loads(m.group(1))
 
 
 def _rows(page) -> dict[int, dict[str, str]]:
     """The side panel: data attributes of every unit row, by unit id."""
-    rows = page.eval_on_selector_all("tr.unit-row", "rs => rs.map(r => Object.assign({}, r.dataset))")
+    rows = page.eval_on_selector_all(
+        "tr.unit-row", "rs => rs.map(r => Object.assign({}, r.dataset))"
+    )
     return {int(r["unitId"]): r for r in rows}
 
 
@@ -81,11 +103,30 @@ def test_combat_page_matches_the_engine_trace(tmp_path, capsys, browser_page):
 
     page, errors = browser_page
     out = tmp_path / "m5v5.html"
-    assert main(["replay", "--scenario", "m5v5", "--ours", "attack-closest", "--enemy", "attack-weakest", "--seed", "0", "--html", str(out)]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                "--scenario",
+                "m5v5",
+                "--ours",
+                "attack-closest",
+                "--enemy",
+                "attack-weakest",
+                "--seed",
+                "0",
+                "--html",
+                str(out),
+            ]
+        )
+        == 0
+    )
     summary = json.loads(capsys.readouterr().out.strip())
     assert summary["html"] == str(out) and summary["done"] and summary["engine_turns"] > TURN
     text = out.read_text(encoding="utf-8")
-    assert "<script src" not in text and "http://" not in text.replace("http://www.w3.org/2000/svg", "")
+    assert "<script src" not in text and "http://" not in text.replace(
+        "http://www.w3.org/2000/svg", ""
+    )
 
     # The engine's own turn-by-turn record of the same start state (the replay's keys).
     env = Combat("m5v5", enemy="attack-weakest")
@@ -100,7 +141,9 @@ def test_combat_page_matches_the_engine_trace(tmp_path, capsys, browser_page):
         for s in range(game.uid.shape[1]):
             uid = int(game.uid[p, s])
             if uid < n_units:
-                units[uid] = UnitSpec(TYPE_NAMES[int(game.utype[p, s])], p, int(game.x[p, s]), int(game.y[p, s]))
+                units[uid] = UnitSpec(
+                    TYPE_NAMES[int(game.utype[p, s])], p, int(game.x[p, s]), int(game.y[p, s])
+                )
     trace = record_trace(units, state.game, env.rules, "attack-closest", "attack-weakest")
     assert len(trace.turns) == summary["engine_turns"]
     # Every frame of the page's data: HP by unit id after each engine turn.
@@ -132,7 +175,9 @@ def test_combat_page_matches_the_engine_trace(tmp_path, capsys, browser_page):
     assert 0 < len(alive) < n_units
     for uid, hp in record.hp.items():
         assert int(rows[uid]["hp"]) == hp, f"unit {uid}"
-        assert int(page.locator(f'g.unit[data-unit-id="{uid}"]').get_attribute("data-hp") or -1) == hp
+        assert (
+            int(page.locator(f'g.unit[data-unit-id="{uid}"]').get_attribute("data-hp") or -1) == hp
+        )
     for uid, (_, _, t_move, t_attack) in record.units.items():
         assert int(rows[uid]["cooldown"]) == max(t_attack - record.next_time, 0)
         assert int(rows[uid]["moveCooldown"]) == max(t_move - record.next_time, 0)
@@ -142,9 +187,13 @@ def test_combat_page_matches_the_engine_trace(tmp_path, capsys, browser_page):
         for a in record.actions
         if "ATTACK" in a and "overkill" not in a
     )
-    lines = page.eval_on_selector_all("line.attack", "ls => ls.map(l => [+l.dataset.from, +l.dataset.to])")
+    lines = page.eval_on_selector_all(
+        "line.attack", "ls => ls.map(l => [+l.dataset.from, +l.dataset.to])"
+    )
     assert sorted(map(tuple, lines)) == attacks
-    assert status.get_attribute("data-alive-ours") == str(sum(1 for u in alive if units[u].player == 0))
+    assert status.get_attribute("data-alive-ours") == str(
+        sum(1 for u in alive if units[u].player == 0)
+    )
 
     shot = tmp_path / "combat.png"
     page.screenshot(path=str(shot))
@@ -174,7 +223,22 @@ def test_traffic_junction_page_matches_the_episode(tmp_path, capsys, browser_pag
     page, errors = browser_page
     out = tmp_path / "tj.html"
     seed, at = 2, 25
-    assert main(["replay", "--env", "traffic_junction", "--ours", "always-gas", "--seed", str(seed), "--html", str(out)]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                "--env",
+                "traffic_junction",
+                "--ours",
+                "always-gas",
+                "--seed",
+                str(seed),
+                "--html",
+                str(out),
+            ]
+        )
+        == 0
+    )
     summary = json.loads(capsys.readouterr().out.strip())
     assert summary["steps"] == 40 and summary["collisions"] > 0  # always-gas collides
 
@@ -200,12 +264,19 @@ def test_traffic_junction_page_matches_the_episode(tmp_path, capsys, browser_pag
     active = np.asarray(state.active)
     cells = np.asarray(car_cells(state))
     assert [rows[i]["active"] == "1" for i in range(len(active))] == active.tolist()
-    cars = page.eval_on_selector_all("g.car", "cs => cs.map(c => [+c.dataset.carId, +c.dataset.row, +c.dataset.col, +c.dataset.route])")
-    expected = sorted([i, int(cells[i, 0]), int(cells[i, 1]), int(state.route[i])] for i in np.flatnonzero(active))
+    cars = page.eval_on_selector_all(
+        "g.car",
+        "cs => cs.map(c => [+c.dataset.carId, +c.dataset.row, +c.dataset.col, +c.dataset.route])",
+    )
+    expected = sorted(
+        [i, int(cells[i, 0]), int(cells[i, 1]), int(state.route[i])] for i in np.flatnonzero(active)
+    )
     assert sorted(cars) == expected
     assert {rows[int(i)]["action"] for i in np.flatnonzero(active)} <= {"gas", ""}
     shown = page.eval_on_selector_all("tr.unit-row", "rs => rs.map(r => r.children[1].textContent)")
-    assert [shown[i] for i in np.flatnonzero(active)] == [ROUTE_NAMES[int(state.route[i])] for i in np.flatnonzero(active)]
+    assert [shown[i] for i in np.flatnonzero(active)] == [
+        ROUTE_NAMES[int(state.route[i])] for i in np.flatnonzero(active)
+    ]
     # Collision markers: a cell per collision site; every colliding car is flagged.
     collided = sum(r["collided"] == "1" for r in rows.values())
     assert collided == collisions_at
@@ -229,14 +300,28 @@ def test_html_page_embeds_policy_probabilities(tmp_path):
         legal = env.get_avail_actions(state).astype(jnp.float32)
         return legal / legal.sum(axis=-1, keepdims=True)
 
-    def alg1(key, state):  # a stand-in for Alg. 1: moves agent 0 from its first legal action to its last
+    def alg1(
+        key, state
+    ):  # a stand-in for Alg. 1: moves agent 0 from its first legal action to its last
         legal = np.asarray(env.get_avail_actions(state))
         start = legal.argmax(axis=1)
         actions = start.copy()
         actions[0] = legal.shape[1] - 1 - legal[0, ::-1].argmax()
-        return {"actions": actions, "start": start, "q_start": np.float32(0.25), "q_final": np.float32(0.5)}
+        return {
+            "actions": actions,
+            "start": start,
+            "q_start": np.float32(0.25),
+            "q_final": np.float32(0.5),
+        }
 
-    timeline, last = record_combat_timeline(env, env.script_policy("attack-closest"), seed=1, max_steps=2, probs_fn=uniform, alg1_fn=alg1)
+    timeline, last = record_combat_timeline(
+        env,
+        env.script_policy("attack-closest"),
+        seed=1,
+        max_steps=2,
+        probs_fn=uniform,
+        alg1_fn=alg1,
+    )
     decisions = [f for f in timeline["frames"] if f["decision"]]
     assert len(decisions) == last["steps"] == 2
     first = decisions[0]["policy"]["agents"]
@@ -246,13 +331,23 @@ def test_html_page_embeds_policy_probabilities(tmp_path):
         assert probs == sorted(probs, reverse=True) and all(abs(p - probs[0]) < 1e-6 for p in probs)
         assert re.fullmatch(r"noop|move (left|right|down|up)|attack \d+", agent["chosen"])
     summary = decisions[0]["policy"]["alg1"]
-    assert summary == {"q_start": 0.25, "q_final": 0.5, "changed": int(first[0]["alg1"] != first[0]["alg1_start"])}
-    assert first[0]["alg1"] != first[0]["alg1_start"] and all(a["alg1"] == a["alg1_start"] for a in first[1:])
+    assert summary == {
+        "q_start": 0.25,
+        "q_final": 0.5,
+        "changed": int(first[0]["alg1"] != first[0]["alg1_start"]),
+    }
+    assert first[0]["alg1"] != first[0]["alg1_start"] and all(
+        a["alg1"] == a["alg1_start"] for a in first[1:]
+    )
     path = write_page(tmp_path / "p.html", timeline, title="m3v3 \u00e9t\u00e9 </script><b>", fps=4)
     doc = _embedded(Path(path))
     assert doc["timeline"]["frames"][1]["policy"] == decisions[0]["policy"]
-    assert doc["meta"]["title"] == "m3v3 \u00e9t\u00e9 </script><b>"  # escaped inside the page, intact in the data
-    assert "<title>m3v3 \u00e9t\u00e9 &lt;/script&gt;&lt;b&gt;</title>" in Path(path).read_text(encoding="utf-8")
+    assert (
+        doc["meta"]["title"] == "m3v3 \u00e9t\u00e9 </script><b>"
+    )  # escaped inside the page, intact in the data
+    assert "<title>m3v3 \u00e9t\u00e9 &lt;/script&gt;&lt;b&gt;</title>" in Path(path).read_text(
+        encoding="utf-8"
+    )
 
 
 def test_html_option_errors(tmp_path, capsys):
@@ -261,5 +356,8 @@ def test_html_option_errors(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "--html" in err and ".html" in err
     assert not bad.exists() and list(tmp_path.iterdir()) == []
-    assert main(["replay", "--run-dir", str(tmp_path / "missing"), "--html", str(tmp_path / "r.html")]) == 2
+    assert (
+        main(["replay", "--run-dir", str(tmp_path / "missing"), "--html", str(tmp_path / "r.html")])
+        == 2
+    )
     assert list(tmp_path.iterdir()) == []

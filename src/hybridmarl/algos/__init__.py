@@ -39,7 +39,9 @@ def module_for_config(config: Any) -> Any:
         mod = algo_module(name)
         if type(config) is mod.CONFIG:
             return mod
-    raise UserError(f"{type(config).__name__} is not the config of a learner (known: {', '.join(ALGOS)})")
+    raise UserError(
+        f"{type(config).__name__} is not the config of a learner (known: {', '.join(ALGOS)})"
+    )
 
 
 __all__ = ["ALGOS", "DEFAULT_PRESET", "algo_module", "module_for_config"]

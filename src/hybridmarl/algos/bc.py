@@ -1,9 +1,9 @@
 """Behavioural cloning (the paper's BC baseline, Section 5.2, and its θ^D of Section 3).
 
-    Phase 1  demonstrations: a dataset file, or demo_observations recorded from the script;
-    Phase 2  supervised fit of the actor architecture (Section 5.1) by cross-entropy on the
-             records where the agent has a choice;
-    Phase 3  evaluation (Section 5.1) and a checkpoint loadable by 'hybridmarl eval'.
+Phase 1  demonstrations: a dataset file, or demo_observations recorded from the script;
+Phase 2  supervised fit of the actor architecture (Section 5.1) by cross-entropy on the
+         records where the agent has a choice;
+Phase 3  evaluation (Section 5.1) and a checkpoint loadable by 'hybridmarl eval'.
 """
 
 from __future__ import annotations
@@ -55,7 +55,9 @@ def _paper(env: str) -> BCConfig:
     """'paper': 10,000 demonstration observations (Section 5.1), 5,000 SGD steps at 10^-3.
     Budget: BC plays no training episodes; its data is the 10,000 demonstration observations
     every learner gets (the hybrid 'paper' preset's 20,000 episodes have no counterpart)."""
-    return BCConfig().replace(env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest")
+    return BCConfig().replace(
+        env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest"
+    )
 
 
 def _quick(env: str) -> BCConfig:
@@ -66,7 +68,13 @@ def _quick(env: str) -> BCConfig:
 
 def _toy(env: str) -> BCConfig:
     """'toy', seconds: 64 observations, 20 steps, a tiny network (tests, CI)."""
-    return _paper(env).replace(demo_observations=64, bc_steps=20, actor_hidden=(16, 16, 16), eval_episodes=8, tensorboard=False)
+    return _paper(env).replace(
+        demo_observations=64,
+        bc_steps=20,
+        actor_hidden=(16, 16, 16),
+        eval_episodes=8,
+        tensorboard=False,
+    )
 
 
 #: Preset name -> '(env) -> BCConfig' ('--preset').
@@ -88,14 +96,26 @@ def train(cfg: BCConfig) -> TrainResult:
         if cfg.demonstrator_is_dataset():
             ds = D.load_dataset(cfg.demonstrator, expect=task)
         else:
-            ds = D.collect(spec, cfg.demonstrator_name(), cfg.demo_observations, seed=cfg.seed, gamma=cfg.gamma)
+            ds = D.collect(
+                spec, cfg.demonstrator_name(), cfg.demo_observations, seed=cfg.seed, gamma=cfg.gamma
+            )
         rows = D.bc_rows(ds)
 
         # ---- Phase 2: the supervised fit --------------------------------------------------------------
         module = nets.actor_module(task.num_actions, cfg.actor_hidden)
         k_init, k_fit = jax.random.split(jax.random.key(cfg.seed))
-        actor = nets.init_net(module, k_init, task.obs_dim, nets.make_optimizer(cfg.optimizer, cfg.actor_lr))
-        actor, losses = D.fit_bc(actor, module, (cfg.optimizer, cfg.actor_lr), rows, k_fit, cfg.bc_steps, cfg.bc_batch_size)
+        actor = nets.init_net(
+            module, k_init, task.obs_dim, nets.make_optimizer(cfg.optimizer, cfg.actor_lr)
+        )
+        actor, losses = D.fit_bc(
+            actor,
+            module,
+            (cfg.optimizer, cfg.actor_lr),
+            rows,
+            k_fit,
+            cfg.bc_steps,
+            cfg.bc_batch_size,
+        )
         check_finite("behavioural-cloning loss", float(losses[-1]), "the end of cloning")
         acc = D.bc_accuracy(actor, module, rows)
         every = max(1, cfg.bc_steps // 200)
@@ -104,14 +124,26 @@ def train(cfg: BCConfig) -> TrainResult:
         steps = list(range(0, len(losses), every))
         if steps[-1] != len(losses) - 1:
             steps.append(len(losses) - 1)
-        run.log.train.write([
-            {"episodes": 0, "step": i + 1, "bc_loss": float(losses[i]), "agreement": acc if i == len(losses) - 1 else float("nan")}
-            for i in steps
-        ])
-        print(f"cloned {ds.size} observations ({rows[0].shape[0]} agent decisions): loss {losses[-1]:.4f}, accuracy {acc:.3f}")
+        run.log.train.write(
+            [
+                {
+                    "episodes": 0,
+                    "step": i + 1,
+                    "bc_loss": float(losses[i]),
+                    "agreement": acc if i == len(losses) - 1 else float("nan"),
+                }
+                for i in steps
+            ]
+        )
+        print(
+            f"cloned {ds.size} observations ({rows[0].shape[0]} agent decisions): loss {losses[-1]:.4f}, accuracy {acc:.3f}"
+        )
         save_checkpoint(
-            run.run_dir, 0, prefixed(flatten_named(actor), "actor"),
-            {"algo": ALGO, "phase": "done", "bc_accuracy": acc, "task": spec.to_dict()}, keep=cfg.keep_checkpoints,
+            run.run_dir,
+            0,
+            prefixed(flatten_named(actor), "actor"),
+            {"algo": ALGO, "phase": "done", "bc_accuracy": acc, "task": spec.to_dict()},
+            keep=cfg.keep_checkpoints,
         )
 
         # ---- Phase 3: evaluation ------------------------------------------------------------------------

@@ -210,11 +210,15 @@ class DQfDConfig(TrainConfig):
     """DQfD: pre-training on demonstrations, then prioritised replay of demonstrations and own
     data with TD, n-step TD, large-margin and L2 losses (Hester et al. 2018)."""
 
-    budget: OmitArgPrefixes[DQfDBudgetOptions] = dataclasses.field(default_factory=DQfDBudgetOptions)
+    budget: OmitArgPrefixes[DQfDBudgetOptions] = dataclasses.field(
+        default_factory=DQfDBudgetOptions
+    )
     demos: OmitArgPrefixes[DemoOptions] = dataclasses.field(default_factory=DemoOptions)
     loss: OmitArgPrefixes[LossOptions] = dataclasses.field(default_factory=LossOptions)
     replay: OmitArgPrefixes[ReplayOptions] = dataclasses.field(default_factory=ReplayOptions)
-    exploration: OmitArgPrefixes[ExplorationOptions] = dataclasses.field(default_factory=ExplorationOptions)
+    exploration: OmitArgPrefixes[ExplorationOptions] = dataclasses.field(
+        default_factory=ExplorationOptions
+    )
     q_network: OmitArgPrefixes[QNetworkOptions] = dataclasses.field(default_factory=QNetworkOptions)
 
 
@@ -235,7 +239,9 @@ def _paper(env: str) -> DQfDConfig:
     preset's, 20,000 episodes in 32 parallel games (the paper gives no budget), after 10,000
     demonstration observations and 50,000 pre-training updates."""
     return DQfDConfig().replace(
-        env=env, demonstrator="always-gas" if env == "traffic_junction" else "attack-closest", **hybrid_budget("paper", env),
+        env=env,
+        demonstrator="always-gas" if env == "traffic_junction" else "attack-closest",
+        **hybrid_budget("paper", env),
     )
 
 
@@ -246,8 +252,15 @@ def _quick(env: str) -> DQfDConfig:
     (paper setting, 2026-12-02, 2-core x86-64 CPU VM, shared): 3,000 episodes in 4.3-4.9 CPU-min
     (26-30 min wall at a load of 16-20), less CPU than the hybrid 'quick' preset's 10-23 CPU-min."""
     return _paper(env).replace(
-        pretrain_updates=3_000, optimizer="adam", lr=3e-4, batch_size=64, updates_per_call=16,
-        target_update_every=500, buffer_size=20_000, checkpoint_every=500, **hybrid_budget("quick", env),
+        pretrain_updates=3_000,
+        optimizer="adam",
+        lr=3e-4,
+        batch_size=64,
+        updates_per_call=16,
+        target_update_every=500,
+        buffer_size=20_000,
+        checkpoint_every=500,
+        **hybrid_budget("quick", env),
     )
 
 
@@ -255,9 +268,19 @@ def _toy(env: str) -> DQfDConfig:
     """'toy', seconds: a smoke test of the whole pipeline (tests, CI): 4 episodes in 4 games,
     a tiny network, no learning."""
     return _quick(env).replace(
-        total_episodes=4, num_envs=4, chunk_steps=8, demo_observations=64, pretrain_updates=8,
-        batch_size=16, updates_per_call=4, target_update_every=8, buffer_size=256, actor_hidden=(16, 16, 16),
-        checkpoint_every=2, eval_episodes=8, tensorboard=False,
+        total_episodes=4,
+        num_envs=4,
+        chunk_steps=8,
+        demo_observations=64,
+        pretrain_updates=8,
+        batch_size=16,
+        updates_per_call=4,
+        target_update_every=8,
+        buffer_size=256,
+        actor_hidden=(16, 16, 16),
+        checkpoint_every=2,
+        eval_episodes=8,
+        tensorboard=False,
     )
 
 
@@ -284,7 +307,17 @@ class PrioritizedReplay:
 
     PER_AGENT = ("actions", "reward", "disc1", "nret", "ndisc", "nidx", "valid", "prio")
 
-    def __init__(self, capacity: int, demo_cap: int, num_agents: int, state_template: Any, *, alpha: float, eps_agent: float, eps_demo: float) -> None:
+    def __init__(
+        self,
+        capacity: int,
+        demo_cap: int,
+        num_agents: int,
+        state_template: Any,
+        *,
+        alpha: float,
+        eps_agent: float,
+        eps_demo: float,
+    ) -> None:
         self.capacity, self.demo_cap, self.n = int(capacity), int(demo_cap), int(num_agents)
         self.template = state_template
         self.alpha, self.eps_agent, self.eps_demo = float(alpha), float(eps_agent), float(eps_demo)
@@ -293,13 +326,24 @@ class PrioritizedReplay:
         self.states = {k: np.zeros((total,) + v.shape, v.dtype) for k, v in proto.items()}
         self.nexts = {k: np.zeros((total,) + v.shape, v.dtype) for k, v in proto.items()}
         dtypes = {"actions": np.int32, "nidx": np.int64, "valid": np.bool_, "prio": np.float64}
-        self.cols = {k: np.zeros((total, self.n), dtypes.get(k, np.float32)) for k in self.PER_AGENT}
+        self.cols = {
+            k: np.zeros((total, self.n), dtypes.get(k, np.float32)) for k in self.PER_AGENT
+        }
         self.demo_size = 0
         self.ptr = 0
         self.size = 0
         self.max_prio = 1.0
 
-    def add(self, rows: dict[str, np.ndarray], done: np.ndarray, segment: np.ndarray, gamma: float, n_step: int, *, demo: bool = False) -> None:
+    def add(
+        self,
+        rows: dict[str, np.ndarray],
+        done: np.ndarray,
+        segment: np.ndarray,
+        gamma: float,
+        n_step: int,
+        *,
+        demo: bool = False,
+    ) -> None:
         """Insert rows (consecutive within 'segment'; 'state.*', 'next.*', 'actions',
         'agent_reward', 'active', 'active_next') and their targets' ingredients."""
         m = int(done.shape[0])
@@ -309,12 +353,18 @@ class PrioritizedReplay:
         reward = np.asarray(rows["agent_reward"], np.float32)
         nret, ndisc, last = nstep_returns(reward, ends, np.asarray(segment), gamma, n_step)
         cols = {
-            "actions": rows["actions"], "reward": reward, "disc1": np.where(ends, 0.0, gamma).astype(np.float32),
-            "nret": nret, "ndisc": ndisc, "valid": np.asarray(rows["active"], bool),
+            "actions": rows["actions"],
+            "reward": reward,
+            "disc1": np.where(ends, 0.0, gamma).astype(np.float32),
+            "nret": nret,
+            "ndisc": ndisc,
+            "valid": np.asarray(rows["active"], bool),
         }
         if demo:
             if m > self.demo_cap:
-                raise ValueError(f"{m} demonstration rows do not fit the protected region of {self.demo_cap}")
+                raise ValueError(
+                    f"{m} demonstration rows do not fit the protected region of {self.demo_cap}"
+                )
             pos = np.arange(m)
             self.demo_size = m
         else:
@@ -348,7 +398,9 @@ class PrioritizedReplay:
         """The first 'count' demonstration rows: (states '[P, ...]', the demonstrator's actions
         '[P, N]'), a fixed probe set for the agreement column."""
         p = min(int(count), self.demo_size)
-        states = unflatten_named(self.template, {k: v[:p] for k, v in self.states.items()}, batch_dims=1)
+        states = unflatten_named(
+            self.template, {k: v[:p] for k, v in self.states.items()}, batch_dims=1
+        )
         return states, self.cols["actions"][:p]
 
     def live_mask(self) -> np.ndarray:
@@ -357,7 +409,9 @@ class PrioritizedReplay:
         rows[self.demo_cap : self.demo_cap + self.size] = True
         return rows[:, None] & self.cols["valid"]
 
-    def sample(self, rng: np.random.Generator, count: int, beta: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sample(
+        self, rng: np.random.Generator, count: int, beta: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """'count' agent-transitions with probability 'p_i / sum p' ('p' already '^α'):
         (rows, agents, importance weights '(M P(i))^-β / max')."""
         p = np.where(self.live_mask(), self.cols["prio"], 0.0).ravel()
@@ -386,9 +440,15 @@ class PrioritizedReplay:
         shape = rows.shape
         nb = len(shape)
         out: dict[str, Any] = {
-            "states": unflatten_named(self.template, {k: v[rows] for k, v in self.states.items()}, batch_dims=nb),
-            "next": unflatten_named(self.template, {k: v[rows] for k, v in self.nexts.items()}, batch_dims=nb),
-            "boot": unflatten_named(self.template, {k: v[bidx] for k, v in self.nexts.items()}, batch_dims=nb),
+            "states": unflatten_named(
+                self.template, {k: v[rows] for k, v in self.states.items()}, batch_dims=nb
+            ),
+            "next": unflatten_named(
+                self.template, {k: v[rows] for k, v in self.nexts.items()}, batch_dims=nb
+            ),
+            "boot": unflatten_named(
+                self.template, {k: v[bidx] for k, v in self.nexts.items()}, batch_dims=nb
+            ),
             "agent": agents.astype(np.int32).reshape(shape),
             "demo": (rows < self.demo_cap).astype(np.float32),
             "weight": weights.reshape(shape),
@@ -401,12 +461,16 @@ class PrioritizedReplay:
         out = {"state." + k: v for k, v in self.states.items()}
         out.update({"next." + k: v for k, v in self.nexts.items()})
         out.update(self.cols)
-        out["counters"] = np.asarray([self.capacity, self.demo_cap, self.demo_size, self.ptr, self.size], np.int64)
+        out["counters"] = np.asarray(
+            [self.capacity, self.demo_cap, self.demo_size, self.ptr, self.size], np.int64
+        )
         out["max_prio"] = np.asarray(self.max_prio, np.float64)
         return out
 
     def load_arrays(self, arrays: dict[str, np.ndarray]) -> None:
-        self.capacity, self.demo_cap, self.demo_size, self.ptr, self.size = (int(x) for x in arrays["counters"])
+        self.capacity, self.demo_cap, self.demo_size, self.ptr, self.size = (
+            int(x) for x in arrays["counters"]
+        )
         self.states = {k: np.array(arrays["state." + k]) for k in self.states}
         self.nexts = {k: np.array(arrays["next." + k]) for k in self.nexts}
         self.cols = {k: np.array(arrays[k]) for k in self.PER_AGENT}
@@ -419,11 +483,23 @@ class PrioritizedReplay:
 class QLearner:
     """The Q network, its optimiser and the jitted functions of one (task, static settings)."""
 
-    def __init__(self, task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> None:
+    def __init__(
+        self,
+        task: Task,
+        hidden: tuple[int, ...],
+        optimizer: str,
+        lr: float,
+        num_envs: int,
+        chunk_steps: int,
+        demo_script: str | None,
+        agreement: bool = False,
+    ) -> None:
         self.task = task
         self.demo_policy = task.demonstrator(demo_script) if demo_script else None
         if agreement and self.demo_policy is None:
-            raise TaskError("the agreement bonus (OGTL's reward shaping) needs a script demonstrator, not a dataset")
+            raise TaskError(
+                "the agreement bonus (OGTL's reward shaping) needs a script demonstrator, not a dataset"
+            )
         self.agreement = agreement
         self.module = nets.actor_module(task.num_actions, hidden)
         self.tx = nets.make_optimizer(optimizer, lr)
@@ -438,12 +514,16 @@ class QLearner:
         '[P, ...]' whose legal greedy action equals the recorded 'actions' '[P, N]'."""
         obs = jax.vmap(self.task.observe)(states)
         legal = jax.vmap(self.task.avail)(states)
-        q = nets.apply_eval(self.module, q_vars, obs.reshape((-1, obs.shape[-1]))).reshape(legal.shape)
+        q = nets.apply_eval(self.module, q_vars, obs.reshape((-1, obs.shape[-1]))).reshape(
+            legal.shape
+        )
         choice = jax.vmap(self.task.env.agent_active)(states) & (jnp.sum(legal, axis=-1) >= 2)
         matches, count = greedy_agreement(q, legal, actions, choice)
         return matches / jnp.maximum(count, 1.0)
 
-    def _transition(self, state: Any, actions: jax.Array, next_state: Any, done: jax.Array, info: dict) -> dict:
+    def _transition(
+        self, state: Any, actions: jax.Array, next_state: Any, done: jax.Array, info: dict
+    ) -> dict:
         """What a buffer row needs from one step 'state -> next_state'."""
         task = self.task
         row = {
@@ -466,10 +546,14 @@ class QLearner:
     def _on_step(self, states, actions, next_states, reward, done, info):
         row = jax.vmap(self._transition)(states, actions, next_states, done, info)
         # The environment's global reward, for '--team-reward'.
-        row["team_reward"] = jnp.broadcast_to(reward[:, None], row["agent_reward"].shape).astype(jnp.float32)
+        row["team_reward"] = jnp.broadcast_to(reward[:, None], row["agent_reward"].shape).astype(
+            jnp.float32
+        )
         return row
 
-    def _collect_chunk(self, pool: Pool, q_vars: Any, eps: jax.Array, use_script: jax.Array, *, steps: int):
+    def _collect_chunk(
+        self, pool: Pool, q_vars: Any, eps: jax.Array, use_script: jax.Array, *, steps: int
+    ):
         """'steps' steps of ε-greedy play of the shared Q network (legal actions only), or of
         the demonstrator script where 'use_script' (one compiled function for both, so
         recording demonstrations costs no extra compilation)."""
@@ -478,11 +562,15 @@ class QLearner:
         def act(carry, key, states, obs, legal):
             greedy = nets.actor_actions(mod, carry, obs, legal)
             k_flip, k_rnd, k_demo = jax.random.split(key, 3)
-            rnd = jax.random.categorical(k_rnd, jnp.where(legal, 0.0, -jnp.inf), axis=-1).astype(jnp.int32)
+            rnd = jax.random.categorical(k_rnd, jnp.where(legal, 0.0, -jnp.inf), axis=-1).astype(
+                jnp.int32
+            )
             flip = jax.random.uniform(k_flip, greedy.shape) < eps
             a = jnp.where(flip, rnd, greedy)
             if demo is not None:
-                scripted = jax.vmap(demo)(jax.random.split(k_demo, self.b), states).astype(jnp.int32)
+                scripted = jax.vmap(demo)(jax.random.split(k_demo, self.b), states).astype(
+                    jnp.int32
+                )
                 a = jnp.where(use_script, scripted, a)
             return a, carry, {}
 
@@ -518,7 +606,14 @@ class QLearner:
                 q_sa = jnp.take_along_axis(qv, mb["actions"][:, None], axis=-1)[:, 0]
                 td1, tdn = y1 - q_sa, yn - q_sa
                 j_e = large_margin_loss(qv, mb["actions"], legal, coeffs[4]) * mb["demo"]
-                terms = jnp.stack([jnp.mean(mb["weight"] * huber(td1)), jnp.mean(mb["weight"] * huber(tdn)), jnp.mean(mb["weight"] * j_e), l2_penalty(params)])
+                terms = jnp.stack(
+                    [
+                        jnp.mean(mb["weight"] * huber(td1)),
+                        jnp.mean(mb["weight"] * huber(tdn)),
+                        jnp.mean(mb["weight"] * j_e),
+                        l2_penalty(params),
+                    ]
+                )
                 return jnp.dot(coeffs[:4], terms), (bs, (td1, terms))
 
             q, loss, (td1, terms) = nets.sgd_step(q, tx, loss_fn)
@@ -529,7 +624,16 @@ class QLearner:
 
 
 @functools.lru_cache(maxsize=8)
-def build_learner(task: Task, hidden: tuple[int, ...], optimizer: str, lr: float, num_envs: int, chunk_steps: int, demo_script: str | None, agreement: bool = False) -> QLearner:
+def build_learner(
+    task: Task,
+    hidden: tuple[int, ...],
+    optimizer: str,
+    lr: float,
+    num_envs: int,
+    chunk_steps: int,
+    demo_script: str | None,
+    agreement: bool = False,
+) -> QLearner:
     """The learner, compiled once per distinct argument list (the arguments are the compile key)."""
     return QLearner(task, hidden, optimizer, lr, num_envs, chunk_steps, demo_script, agreement)
 
@@ -542,7 +646,9 @@ PROBE_ROWS = 1024
 # -- demonstrations -> buffer rows ---------------------------------------------------------------------------
 
 
-def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, float]:
+def demo_rows(
+    learner: QLearner, ds: Any, chunk: int = 256
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, float]:
     """Re-simulate every record of a dataset once ('step(s_t, a_t)') for its next state,
     per-agent rewards and 'done'; returns (rows, done, segment, fraction of records whose
     recorded global reward the re-simulation reproduces)."""
@@ -564,7 +670,9 @@ def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, n
         row.update({"next." + n: v for n, v in flatten_named(out.pop("next")).items()})
         row.update({n: np.asarray(v) for n, v in out.items()})
         row["reward_env"] = np.asarray(r)
-        row["team_reward"] = np.broadcast_to(np.asarray(r, np.float32)[:, None], row["agent_reward"].shape).copy()
+        row["team_reward"] = np.broadcast_to(
+            np.asarray(r, np.float32)[:, None], row["agent_reward"].shape
+        ).copy()
         parts.append({n: v[: idx.size] for n, v in row.items()})
     rows = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
     agree = float(np.mean(np.isclose(rows.pop("reward_env"), ds.arrays["reward"], atol=1e-6)))
@@ -576,13 +684,17 @@ def demo_rows(learner: QLearner, ds: Any, chunk: int = 256) -> tuple[dict[str, n
 def _step_batch(task: Task):
     def step(states, actions):
         b = actions.shape[0]
-        _, s2, r, d, info = jax.vmap(task.step)(jax.random.split(jax.random.key(0), b), states, actions)
+        _, s2, r, d, info = jax.vmap(task.step)(
+            jax.random.split(jax.random.key(0), b), states, actions
+        )
         return s2, r, d, info
 
     return jax.jit(step)
 
 
-def online_rows(out: dict, asm: EpisodeAssembler) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+def online_rows(
+    out: dict, asm: EpisodeAssembler
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """Finished episodes of a 'collect_chunk' block: (rows, done, segment, episode metrics)."""
     step = jax.device_get(out["step"])
     fields = {"state." + k: v for k, v in flatten_named(jax.device_get(out["state"])).items()}
@@ -594,7 +706,9 @@ def online_rows(out: dict, asm: EpisodeAssembler) -> tuple[dict[str, np.ndarray]
     return rows, rows.pop("done").astype(bool), seg, stats
 
 
-def record_demos(learner: QLearner, pool: Pool, q_vars: Any, count: int, gamma: float) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, float]]:
+def record_demos(
+    learner: QLearner, pool: Pool, q_vars: Any, count: int, gamma: float
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict[str, float]]:
     """Play the demonstrator script from random start states until 'count' records of finished
     episodes are in (the last episode is cut at 'count', like 'demos.collect')."""
     asm = EpisodeAssembler(learner.b, gamma)
@@ -602,7 +716,9 @@ def record_demos(learner: QLearner, pool: Pool, q_vars: Any, count: int, gamma: 
     stats_all: dict[str, list[float]] = {}
     got = 0
     while got < count:
-        pool, out = learner.collect_chunk(pool, q_vars, jnp.zeros((), jnp.float32), jnp.ones((), bool))
+        pool, out = learner.collect_chunk(
+            pool, q_vars, jnp.zeros((), jnp.float32), jnp.ones((), bool)
+        )
         rows, done, seg, stats = online_rows(out, asm)
         parts.append((rows, done, seg))
         got += int(done.size)
@@ -632,17 +748,28 @@ class DQfDState(RunState):
 
     TREES: ClassVar[dict[str, str]] = {"actor": "q", "target": "target"}
     BUFFERS: ClassVar[dict[str, str]] = {"buffer": "buffer"}
-    COUNTERS: ClassVar[tuple[str, ...]] = (*RunState.COUNTERS, "updates", "pretrain_done", "update_credit", "next_target", "reward_unit")
+    COUNTERS: ClassVar[tuple[str, ...]] = (
+        *RunState.COUNTERS,
+        "updates",
+        "pretrain_done",
+        "update_credit",
+        "next_target",
+        "reward_unit",
+    )
 
     def rng(self) -> np.random.Generator:
-        return np.random.default_rng(np.asarray(jax.random.key_data(self.next_key())).astype(np.uint64))
+        return np.random.default_rng(
+            np.asarray(jax.random.key_data(self.next_key())).astype(np.uint64)
+        )
 
 
 def _variables(q: nets.NetState) -> dict:
     return {"params": q.params, "batch_stats": q.batch_stats}
 
 
-def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | None = None) -> TrainResult:
+def train(
+    cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | None = None
+) -> TrainResult:
     """The whole run ('algo' names it: 'dqfd', or 'ogtl' with OGTL's switches). Raises a
     'UserError' for bad input and 'TrainingDiverged' when a loss or parameter becomes NaN/inf.
 
@@ -657,19 +784,47 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
         # ---- Phase 0: set-up ------------------------------------------------------------------------
         task = run.task
         dataset = cfg.demonstrator_is_dataset()
-        learner = build_learner(task, tuple(cfg.actor_hidden), cfg.optimizer, cfg.lr, cfg.num_envs, cfg.chunk_steps, None if dataset else cfg.demonstrator_name(), shaping is not None)
+        learner = build_learner(
+            task,
+            tuple(cfg.actor_hidden),
+            cfg.optimizer,
+            cfg.lr,
+            cfg.num_envs,
+            cfg.chunk_steps,
+            None if dataset else cfg.demonstrator_name(),
+            shaping is not None,
+        )
         k_net, k_pool, k_run = jax.random.split(jax.random.key(cfg.seed), 3)
         q = nets.init_net(learner.module, k_net, task.obs_dim, learner.tx)
         template = task.state_template()
 
         def new_buffer(demo_cap: int) -> PrioritizedReplay:
-            return PrioritizedReplay(cfg.buffer_size, demo_cap, task.num_agents, template, alpha=cfg.per_alpha, eps_agent=cfg.per_eps_agent, eps_demo=cfg.per_eps_demo)
+            return PrioritizedReplay(
+                cfg.buffer_size,
+                demo_cap,
+                task.num_agents,
+                template,
+                alpha=cfg.per_alpha,
+                eps_agent=cfg.per_eps_agent,
+                eps_demo=cfg.per_eps_demo,
+            )
 
         st = DQfDState(
-            q=q, target=_variables(q), pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
-            buffer=new_buffer(0), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma), next_target=cfg.target_update_every,
+            q=q,
+            target=_variables(q),
+            pool=new_pool(task, k_pool, cfg.num_envs),
+            key=key_data(k_run),
+            buffer=new_buffer(0),
+            assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma),
+            next_target=cfg.target_update_every,
         )
-        run.start(st, learner.module, lambda: _variables(st.q), lambda: prefixed(flatten_named(st.q), "actor"), networks={"q_params": nets.num_params(q.params)})
+        run.start(
+            st,
+            learner.module,
+            lambda: _variables(st.q),
+            lambda: prefixed(flatten_named(st.q), "actor"),
+            networks={"q_params": nets.num_params(q.params)},
+        )
 
         probe: list[Any] = []
 
@@ -685,8 +840,12 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
             """The method's train.csv columns."""
             bonus = shaping(episodes) if shaping is not None else 0.0
             return {
-                "updates": st.updates, "epsilon": eps, "agreement": agreement(), "lambda_margin": lam_e,
-                "agreement_bonus": bonus, **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)),
+                "updates": st.updates,
+                "epsilon": eps,
+                "agreement": agreement(),
+                "lambda_margin": lam_e,
+                "agreement_bonus": bonus,
+                **dict(zip(LOSS_NAMES, terms.tolist(), strict=True)),
             }
 
         def train_updates(count: int, beta: float, coeffs: np.ndarray, where: str) -> np.ndarray:
@@ -699,13 +858,20 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                 rng = st.rng()
                 rows, agents, w = st.buffer.sample(rng, k * cfg.batch_size, beta)
                 rows, agents, w = (x.reshape(k, cfg.batch_size) for x in (rows, agents, w))
-                st.q, td, terms = learner.update_block(st.q, st.target, st.buffer.batch(rows, agents, w), jnp.asarray(coeffs, jnp.float32))
+                st.q, td, terms = learner.update_block(
+                    st.q,
+                    st.target,
+                    st.buffer.batch(rows, agents, w),
+                    jnp.asarray(coeffs, jnp.float32),
+                )
                 st.buffer.update_priorities(rows.ravel(), agents.ravel(), np.asarray(td).ravel())
                 st.updates += k
                 # The target network is copied every target_update_every updates.
                 if st.updates >= st.next_target:
                     st.target = _variables(st.q)
-                    st.next_target = (st.updates // cfg.target_update_every + 1) * cfg.target_update_every
+                    st.next_target = (
+                        st.updates // cfg.target_update_every + 1
+                    ) * cfg.target_update_every
                 terms_all.append(np.asarray(terms))
             out = np.mean(terms_all, axis=0) if terms_all else np.full(len(LOSS_NAMES), np.nan)
             check_finite("Q loss", float(out[0]), where)
@@ -721,25 +887,49 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                 how = f"dataset; re-simulation reproduces {agree:.1%} of the recorded rewards"
             else:
                 demo_pool = new_pool(task, st.next_key(), cfg.num_envs)
-                rows, done, seg, st.demo_stats = record_demos(learner, demo_pool, _variables(st.q), cfg.demo_observations, cfg.gamma)
-                how = f"{cfg.demonstrator_name()}: " + ", ".join(f"{k} {v:.3f}" for k, v in st.demo_stats.items())
+                rows, done, seg, st.demo_stats = record_demos(
+                    learner, demo_pool, _variables(st.q), cfg.demo_observations, cfg.gamma
+                )
+                how = f"{cfg.demonstrator_name()}: " + ", ".join(
+                    f"{k} {v:.3f}" for k, v in st.demo_stats.items()
+                )
             if cfg.team_reward:
                 rows["agent_reward"] = rows["team_reward"]
             # Rewards in units of a typical reward event, the scale DQfD's settings assume.
-            st.reward_unit = reward_unit(rows["agent_reward"], rows["active"]) if cfg.reward_unit is None else float(cfg.reward_unit)
-            rows["agent_reward"] = np.asarray(rows["agent_reward"], np.float32) / np.float32(st.reward_unit)
+            st.reward_unit = (
+                reward_unit(rows["agent_reward"], rows["active"])
+                if cfg.reward_unit is None
+                else float(cfg.reward_unit)
+            )
+            rows["agent_reward"] = np.asarray(rows["agent_reward"], np.float32) / np.float32(
+                st.reward_unit
+            )
             st.buffer = new_buffer(int(done.size))
             st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step, demo=True)
             st.demo_stats.update(records=float(done.size), episodes=float(len(np.unique(seg))))
-            print(f"{done.size} demonstration records from {len(np.unique(seg))} episodes ({how}); reward unit {st.reward_unit:.4g}")
+            print(
+                f"{done.size} demonstration records from {len(np.unique(seg))} episodes ({how}); reward unit {st.reward_unit:.4g}"
+            )
             # ---- Phase 2: pre-training on demonstrations only ----------------------------------------
             t0 = time.time()
             td_on = 1.0 if cfg.pretrain_td else 0.0
-            coeffs = np.asarray([td_on, td_on * cfg.lambda_nstep, cfg.lambda_margin, cfg.lambda_l2, cfg.margin])
+            coeffs = np.asarray(
+                [td_on, td_on * cfg.lambda_nstep, cfg.lambda_margin, cfg.lambda_l2, cfg.margin]
+            )
             terms = train_updates(cfg.pretrain_updates, cfg.per_beta0, coeffs, "pre-training")
             st.pretrain_done = st.updates
-            run.log.train.write([run.train_row(loss_head(0, float("nan"), cfg.lambda_margin, terms), 0.0, episodes=0)])
-            print(f"pre-trained on demonstrations: {st.updates} updates ({time.time() - t0:.0f}s), " + ", ".join(f"{n} {v:.4f}" for n, v in zip(LOSS_NAMES, terms, strict=True)) + f", agreement {agreement():.3f}")
+            run.log.train.write(
+                [
+                    run.train_row(
+                        loss_head(0, float("nan"), cfg.lambda_margin, terms), 0.0, episodes=0
+                    )
+                ]
+            )
+            print(
+                f"pre-trained on demonstrations: {st.updates} updates ({time.time() - t0:.0f}s), "
+                + ", ".join(f"{n} {v:.4f}" for n, v in zip(LOSS_NAMES, terms, strict=True))
+                + f", agreement {agreement():.3f}"
+            )
             # Interaction bootstraps from the pre-trained network, not from an older copy.
             st.target = _variables(st.q)
             st.next_target = st.updates + cfg.target_update_every
@@ -747,30 +937,49 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
             run.save()
 
         # ---- Phase 3: interaction ---------------------------------------------------------------------
-        lam_online = cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
+        lam_online = (
+            cfg.lambda_margin if cfg.lambda_margin_online is None else cfg.lambda_margin_online
+        )
         terms = np.full(len(LOSS_NAMES), np.nan)
         lam_e = lam_online
         with run.loop():
             while run.running():
                 # ε-greedy play of the shared Q network (legal actions only), compiled.
-                frac = min(1.0, st.episodes / max(cfg.eps_decay_episodes, 1)) if cfg.eps_decay_episodes > 0 else 1.0
+                frac = (
+                    min(1.0, st.episodes / max(cfg.eps_decay_episodes, 1))
+                    if cfg.eps_decay_episodes > 0
+                    else 1.0
+                )
                 eps = cfg.eps_start + (cfg.eps_end - cfg.eps_start) * frac
-                st.pool, out = learner.collect_chunk(st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool))
+                st.pool, out = learner.collect_chunk(
+                    st.pool, _variables(st.q), jnp.asarray(eps, jnp.float32), jnp.zeros((), bool)
+                )
                 rows, done, seg, stats = online_rows(out, st.assembler)
                 if cfg.team_reward:
                     rows["agent_reward"] = rows["team_reward"]
                 if shaping is not None:
                     agrees = rows.pop("agrees")
-                    rows["agent_reward"] = rows["agent_reward"] + np.float32(shaping(st.episodes)) * agrees
-                rows["agent_reward"] = np.asarray(rows["agent_reward"], np.float32) / np.float32(st.reward_unit)
+                    rows["agent_reward"] = (
+                        rows["agent_reward"] + np.float32(shaping(st.episodes)) * agrees
+                    )
+                rows["agent_reward"] = np.asarray(rows["agent_reward"], np.float32) / np.float32(
+                    st.reward_unit
+                )
                 st.buffer.add(rows, done, seg, cfg.gamma, cfg.n_step)
                 run.count(stats, cfg.chunk_steps * cfg.num_envs)
                 # λ2 (constant, or annealed to lambda_margin_final); without keep_demos the
                 # demonstrations leave the buffer once λ2 is 0 (at once when it is 0 throughout).
                 lam_e = lam_online
                 if cfg.margin_decay_episodes > 0:
-                    lam_e = cfg.lambda_margin_final + linear_decay(lam_online - cfg.lambda_margin_final, st.episodes, cfg.margin_decay_episodes)
-                if not cfg.keep_demos and lam_e == 0.0 and st.episodes >= cfg.margin_decay_episodes and st.buffer.demos_live():
+                    lam_e = cfg.lambda_margin_final + linear_decay(
+                        lam_online - cfg.lambda_margin_final, st.episodes, cfg.margin_decay_episodes
+                    )
+                if (
+                    not cfg.keep_demos
+                    and lam_e == 0.0
+                    and st.episodes >= cfg.margin_decay_episodes
+                    and st.buffer.demos_live()
+                ):
                     st.buffer.drop_demos()
                 coeffs = np.asarray([1.0, cfg.lambda_nstep, lam_e, cfg.lambda_l2, cfg.margin])
                 # One update every train_every env steps, IS exponent β annealed to 1.
@@ -778,12 +987,25 @@ def train(cfg: DQfDConfig, algo: str = ALGO, shaping: Callable[[int], float] | N
                 if st.buffer.live_mask().any() and st.update_credit >= cfg.updates_per_call:
                     blocks = int(st.update_credit // cfg.updates_per_call)
                     st.update_credit -= blocks * cfg.updates_per_call
-                    beta = cfg.per_beta0 + (1.0 - cfg.per_beta0) * min(1.0, st.episodes / max(cfg.total_episodes, 1))
-                    terms = train_updates(blocks * cfg.updates_per_call, beta, coeffs, f"episode {st.episodes}")
+                    beta = cfg.per_beta0 + (1.0 - cfg.per_beta0) * min(
+                        1.0, st.episodes / max(cfg.total_episodes, 1)
+                    )
+                    terms = train_updates(
+                        blocks * cfg.updates_per_call, beta, coeffs, f"episode {st.episodes}"
+                    )
                 run.log_chunk(loss_head(st.episodes, eps, lam_e, terms), f"loss {terms[0]:.4f}")
 
         # ---- Phase 4: evaluation ----------------------------------------------------------------------------
         return run.finish({"updates": st.updates})
 
 
-__all__ = ["ALGO", "CONFIG", "PRESETS", "DQfDConfig", "PrioritizedReplay", "QLearner", "build_learner", "train"]
+__all__ = [
+    "ALGO",
+    "CONFIG",
+    "PRESETS",
+    "DQfDConfig",
+    "PrioritizedReplay",
+    "QLearner",
+    "build_learner",
+    "train",
+]

@@ -111,13 +111,26 @@ class OGTLConfig(dqfd.DQfDConfig):
 
     demos: OmitArgPrefixes[OGTLDemoOptions] = dataclasses.field(default_factory=OGTLDemoOptions)
     loss: OmitArgPrefixes[OGTLLossOptions] = dataclasses.field(default_factory=OGTLLossOptions)
-    replay: OmitArgPrefixes[OGTLReplayOptions] = dataclasses.field(default_factory=OGTLReplayOptions)
-    exploration: OmitArgPrefixes[OGTLExplorationOptions] = dataclasses.field(default_factory=OGTLExplorationOptions)
+    replay: OmitArgPrefixes[OGTLReplayOptions] = dataclasses.field(
+        default_factory=OGTLReplayOptions
+    )
+    exploration: OmitArgPrefixes[OGTLExplorationOptions] = dataclasses.field(
+        default_factory=OGTLExplorationOptions
+    )
     shaping: OmitArgPrefixes[ShapingOptions] = dataclasses.field(default_factory=ShapingOptions)
 
 
 #: OGTL's switches on DQfD's machinery: their values come from OGTLConfig, not from DQfD's presets.
-SWITCHES = ("keep_demos", "lambda_margin_online", "margin_decay_episodes", "lambda_margin_final", "lambda_nstep", "per_alpha", "eps_start", "eps_end")
+SWITCHES = (
+    "keep_demos",
+    "lambda_margin_online",
+    "margin_decay_episodes",
+    "lambda_margin_final",
+    "lambda_nstep",
+    "per_alpha",
+    "eps_start",
+    "eps_end",
+)
 
 
 def agreement_schedule(cfg: OGTLConfig):

@@ -183,7 +183,17 @@ def _check_player_spec(spec: str) -> None:
         make_player(spec)
     except ValueError as e:
         msg = str(e).splitlines()[0] if str(e) else f"bad player {spec!r}"
-        if spec.split(":")[0].strip().lower() not in ("uct", "uct-cd", "uctcd", "abcd", "ab", "alphabeta", "alpha-beta", "pgs", "portfolio"):
+        if spec.split(":")[0].strip().lower() not in (
+            "uct",
+            "uct-cd",
+            "uctcd",
+            "abcd",
+            "ab",
+            "alphabeta",
+            "alpha-beta",
+            "pgs",
+            "portfolio",
+        ):
             msg = f"unknown script {spec!r} (scripts: {', '.join(SCRIPTS)}; search players: uct, abcd, pgs)"
         raise InputError(msg) from None
 
@@ -199,8 +209,20 @@ def run_battle(cfg: BattleConfig) -> int:
     from hybridmarl.validate import COUNT, COUNT_OR_ZERO, SEED, check_values, optional
 
     check_values(
-        {"n": cfg.n, "seed": cfg.seed, "batch_size": cfg.batch_size, "stalemate_limit": cfg.stalemate_limit, "max_turns": cfg.max_turns},
-        {"n": COUNT, "seed": SEED, "batch_size": COUNT, "stalemate_limit": optional(COUNT_OR_ZERO), "max_turns": COUNT},
+        {
+            "n": cfg.n,
+            "seed": cfg.seed,
+            "batch_size": cfg.batch_size,
+            "stalemate_limit": cfg.stalemate_limit,
+            "max_turns": cfg.max_turns,
+        },
+        {
+            "n": COUNT,
+            "seed": SEED,
+            "batch_size": COUNT,
+            "stalemate_limit": optional(COUNT_OR_ZERO),
+            "max_turns": COUNT,
+        },
         error=InputError,
     )
     if cfg.out:
@@ -250,7 +272,9 @@ def run_battle(cfg: BattleConfig) -> int:
         if loaded is not None:
             return loaded[first : first + m], cfg.seed
         assert sc is not None
-        seed = cfg.seed if k == 0 else int(np.random.SeedSequence([cfg.seed, k]).generate_state(1)[0])
+        seed = (
+            cfg.seed if k == 0 else int(np.random.SeedSequence([cfg.seed, k]).generate_state(1)[0])
+        )
         if engine == "native" and walkable is None and not any(search):
             # The same states as sc.generate, drawn straight into arrays: no per-unit objects.
             from hybridmarl.engine.native import from_arrays
@@ -275,7 +299,9 @@ def run_battle(cfg: BattleConfig) -> int:
             return native.run_battles(states, a, b, seed=seed, rules=rules, progress=cfg.progress)
         from hybridmarl.engine.battle import run_battles
 
-        return run_battles(states, a, b, seed=seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress)
+        return run_battles(
+            states, a, b, seed=seed, rules=rules, batch_size=cfg.batch_size, progress=cfg.progress
+        )
 
     if setting.name != "sparcraft":
         label += f", {setting.name} setting"
@@ -294,9 +320,15 @@ def run_battle(cfg: BattleConfig) -> int:
                 tally.add(res)
                 if out is not None:
                     rows = res.to_document()["results"]
-                    out.write(("," if k else "") + ",".join(json.dumps(r, sort_keys=True) for r in rows))
+                    out.write(
+                        ("," if k else "") + ",".join(json.dumps(r, sort_keys=True) for r in rows)
+                    )
             if out is not None:
-                out.write('], "summary": ' + json.dumps(tally.summary(), sort_keys=True) + ("}" if i == 1 else ""))
+                out.write(
+                    '], "summary": '
+                    + json.dumps(tally.summary(), sort_keys=True)
+                    + ("}" if i == 1 else "")
+                )
             tallies.append(tally)
         if out is not None:
             out.write(', "setting": ' + json.dumps(setting.name) + "}\n")
@@ -316,7 +348,9 @@ def _units_before_loading(cfg: BattleConfig) -> int | None:
 
         try:
             doc = read_user_json(cfg.scenario_file, "scenario file")
-            sides = [doc["player0"]] + ([] if doc.get("kind") in ("separated", "symmetric") else [doc["player1"]])
+            sides = [doc["player0"]] + (
+                [] if doc.get("kind") in ("separated", "symmetric") else [doc["player1"]]
+            )
             counts = [sum(int(e["count"]) for e in side) for side in sides]
         except Exception:
             return None
@@ -348,9 +382,15 @@ class _Tally:
     def summary(self) -> dict[str, Any]:
         n = max(self.battles, 1)
         return {
-            "battles": self.battles, "p0": self.p0, "p1": self.p1,
-            "p0_wins": self.p0_wins, "p1_wins": self.p1_wins, "draws": self.draws,
-            "p0_win_rate": self.p0_wins / n, "p1_win_rate": self.p1_wins / n, "draw_rate": self.draws / n,
+            "battles": self.battles,
+            "p0": self.p0,
+            "p1": self.p1,
+            "p0_wins": self.p0_wins,
+            "p1_wins": self.p1_wins,
+            "draws": self.draws,
+            "p0_win_rate": self.p0_wins / n,
+            "p1_win_rate": self.p1_wins / n,
+            "draw_rate": self.draws / n,
             "mean_final_time": self.time_sum / n if self.battles else 0.0,
             "mean_turns": self.turns_sum / n if self.battles else 0.0,
         }
@@ -361,7 +401,16 @@ def _print_table(label: str, results) -> None:
     from rich.table import Table
 
     table = Table(title=f"Battles: {label}")
-    for col in ("P0 (left)", "P1 (right)", "battles", "P0 wins", "P1 wins", "draws", "mean turns", "mean frames"):
+    for col in (
+        "P0 (left)",
+        "P1 (right)",
+        "battles",
+        "P0 wins",
+        "P1 wins",
+        "draws",
+        "mean turns",
+        "mean frames",
+    ):
         table.add_column(col, justify="right")
     for r in results:
         s = r.summary()
@@ -404,7 +453,11 @@ def run_trace(cfg: TraceConfig) -> int:
         except KeyError as e:
             raise InputError(str(e.args[0])) from None
     setting = get_setting(cfg.setting)
-    states = load_states_file(cfg.states) if cfg.states else named_scenario(cfg.scenario, setting).generate(cfg.index + 1, cfg.seed)
+    states = (
+        load_states_file(cfg.states)
+        if cfg.states
+        else named_scenario(cfg.scenario, setting).generate(cfg.index + 1, cfg.seed)
+    )
     if not 0 <= cfg.index < len(states):
         raise InputError(f"--index {cfg.index} out of range (0..{len(states) - 1})")
     units = states[cfg.index]

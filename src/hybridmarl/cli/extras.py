@@ -31,7 +31,9 @@ def missing_extra_error(err: ImportError) -> UserError | None:
     extra = EXTRA_OF_MODULE.get(root)
     if extra is None:
         return None
-    return UserError(f"{root} is not installed; install the {extra!r} extra: pip install 'hybridmarl[{extra}]'")
+    return UserError(
+        f"{root} is not installed; install the {extra!r} extra: pip install 'hybridmarl[{extra}]'"
+    )
 
 
 @contextmanager

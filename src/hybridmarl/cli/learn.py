@@ -64,7 +64,12 @@ def train_command(args: list[str]) -> int:
     known, rest = pre.parse_known_args(args)
     # --resume with a run directory and no preset: start from the run's own (validated) config.
     doc = None
-    if known.resume and known.preset is None and known.run_dir and (Path(known.run_dir) / "config.json").exists():
+    if (
+        known.resume
+        and known.preset is None
+        and known.run_dir
+        and (Path(known.run_dir) / "config.json").exists()
+    ):
         from hybridmarl.training.rundir import read_run_config
 
         doc = read_run_config(known.run_dir)
@@ -78,7 +83,9 @@ def train_command(args: list[str]) -> int:
     else:
         preset = known.preset or default_preset
         if preset not in mod.PRESETS:
-            raise UserError(f"unknown preset {preset!r} for --algo {known.algo or mod.ALGO} (known: {', '.join(mod.PRESETS)})")
+            raise UserError(
+                f"unknown preset {preset!r} for --algo {known.algo or mod.ALGO} (known: {', '.join(mod.PRESETS)})"
+            )
         default = mod.PRESETS[preset](env)
     cls = type(default)
     extra = ["--env", env]
@@ -91,7 +98,13 @@ def train_command(args: list[str]) -> int:
         f"--preset {{{', '.join(mod.PRESETS)}}} (default {default_preset}) sets the defaults below; "
         "--yes trains a run whose arrays are estimated above the size guard (docs/engine.md#size-guards)."
     )
-    cfg = tyro.cli(cls, args=extra + rest, default=default, prog=f"hybridmarl train --algo {mod.ALGO}", description=desc)
+    cfg = tyro.cli(
+        cls,
+        args=extra + rest,
+        default=default,
+        prog=f"hybridmarl train --algo {mod.ALGO}",
+        description=desc,
+    )
     from hybridmarl.cli.sizes import check_train_size
     from hybridmarl.training.task import make_task
     from hybridmarl.validate import check_config
@@ -190,13 +203,18 @@ def run_eval(cfg: EvalConfig) -> int:
     )
     from hybridmarl.validate import COUNT, PROBABILITY, SEED, check_values, optional
 
-    check_values({"n": cfg.n, "seed": cfg.seed, "p_arrive": cfg.p_arrive}, {"n": COUNT, "seed": SEED, "p_arrive": optional(PROBABILITY)})
+    check_values(
+        {"n": cfg.n, "seed": cfg.seed, "p_arrive": cfg.p_arrive},
+        {"n": COUNT, "seed": SEED, "p_arrive": optional(PROBABILITY)},
+    )
     if cfg.out:
         check_output_path(cfg.out)
     if (cfg.run_dir is None) == (cfg.script is None):
         raise UserError("give exactly one of --run-dir (a trained policy) or --script")
     if cfg.script is not None and cfg.enemy_run_dir and E.is_search_spec(cfg.script):
-        raise UserError("a search player (--script uct/abcd/pgs) needs a script enemy (--enemy), not --enemy-run-dir")
+        raise UserError(
+            "a search player (--script uct/abcd/pgs) needs a script enemy (--enemy), not --enemy-run-dir"
+        )
     bundle = None
     if cfg.run_dir is not None:
         bundle = E.load_policy(cfg.run_dir, cfg.checkpoint, cfg.policy)
@@ -234,8 +252,14 @@ def run_eval(cfg: EvalConfig) -> int:
             enemy_label = enemy
     else:
         task = make_task(spec)
-    if bundle is not None and (task.num_agents, task.num_actions, task.obs_dim) != (make_task(bundle.spec).num_agents, make_task(bundle.spec).num_actions, make_task(bundle.spec).obs_dim):
-        raise UserError(f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes")
+    if bundle is not None and (task.num_agents, task.num_actions, task.obs_dim) != (
+        make_task(bundle.spec).num_agents,
+        make_task(bundle.spec).num_actions,
+        make_task(bundle.spec).obs_dim,
+    ):
+        raise UserError(
+            f"the policy of {cfg.run_dir} was trained on {bundle.spec.label()}; {spec.label()} has other observation/action shapes"
+        )
     from hybridmarl.cli.sizes import check_eval_size
 
     check_eval_size(cfg.n, task, yes=cfg.yes)
@@ -254,7 +278,15 @@ def run_eval(cfg: EvalConfig) -> int:
         res = E.evaluate_player(task, cfg.script, n=cfg.n, seed=cfg.seed, progress=True)
     else:
         assert cfg.script is not None
-        res = E.evaluate_task(task, None, None, n=cfg.n, seed=cfg.seed, script=canonical_script(task.kind, cfg.script), engine=cfg.engine)
+        res = E.evaluate_task(
+            task,
+            None,
+            None,
+            n=cfg.n,
+            seed=cfg.seed,
+            script=canonical_script(task.kind, cfg.script),
+            engine=cfg.engine,
+        )
     res.update(
         policy=cfg.run_dir or f"script:{cfg.script}",
         env=spec.env,
@@ -346,7 +378,18 @@ def run_demos_info(cfg: DemosInfoConfig) -> int:
     a = ds.arrays
     summary = {
         "path": cfg.path,
-        **{k: ds.meta.get(k) for k in ("version", "demonstrator", "task", "num_agents", "num_actions", "obs_dim", "seed")},
+        **{
+            k: ds.meta.get(k)
+            for k in (
+                "version",
+                "demonstrator",
+                "task",
+                "num_agents",
+                "num_actions",
+                "obs_dim",
+                "seed",
+            )
+        },
         "observations": ds.size,
         "episodes": int(a["episode"].max()) + 1,
         "agent_decisions": int((a["legal"].sum(-1) >= 2).sum()),
@@ -364,8 +407,22 @@ def run_demos_collect(cfg: DemosCollectConfig) -> int:
     from hybridmarl.validate import COUNT, DISCOUNT, PROBABILITY, SEED, check_values, optional
 
     check_values(
-        {"n": cfg.n, "seed": cfg.seed, "num_envs": cfg.num_envs, "gamma": cfg.gamma, "p_arrive": cfg.p_arrive, "max_turns": cfg.max_turns},
-        {"n": COUNT, "seed": SEED, "num_envs": COUNT, "gamma": DISCOUNT, "p_arrive": optional(PROBABILITY), "max_turns": COUNT},
+        {
+            "n": cfg.n,
+            "seed": cfg.seed,
+            "num_envs": cfg.num_envs,
+            "gamma": cfg.gamma,
+            "p_arrive": cfg.p_arrive,
+            "max_turns": cfg.max_turns,
+        },
+        {
+            "n": COUNT,
+            "seed": SEED,
+            "num_envs": COUNT,
+            "gamma": DISCOUNT,
+            "p_arrive": optional(PROBABILITY),
+            "max_turns": COUNT,
+        },
     )
     check_output_path(cfg.out)
     env = canonical_env(cfg.env)
@@ -380,9 +437,13 @@ def run_demos_collect(cfg: DemosCollectConfig) -> int:
     from hybridmarl.training.task import make_task
 
     check_demos_size(cfg.n, make_task(spec), yes=cfg.yes)
-    ds = D.collect(spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma, engine=cfg.engine)
+    ds = D.collect(
+        spec, demo, cfg.n, seed=cfg.seed, num_envs=cfg.num_envs, gamma=cfg.gamma, engine=cfg.engine
+    )
     path = D.save_dataset(ds, cfg.out)
-    print(f"recorded {ds.size} observations ({int(ds.arrays['episode'].max()) + 1} episodes) of {demo} on {spec.label()} -> {path}")
+    print(
+        f"recorded {ds.size} observations ({int(ds.arrays['episode'].max()) + 1} episodes) of {demo} on {spec.label()} -> {path}"
+    )
     return 0
 
 
@@ -391,5 +452,9 @@ def demos_command(args: list[str]) -> int:
     if not args or args[0] not in ("collect", "info"):
         raise UserError("usage: hybridmarl demos {collect,info} [options]")
     if args[0] == "info":
-        return run_demos_info(tyro.cli(DemosInfoConfig, args=args[1:], prog="hybridmarl demos info"))
-    return run_demos_collect(tyro.cli(DemosCollectConfig, args=args[1:], prog="hybridmarl demos collect"))
+        return run_demos_info(
+            tyro.cli(DemosInfoConfig, args=args[1:], prog="hybridmarl demos info")
+        )
+    return run_demos_collect(
+        tyro.cli(DemosCollectConfig, args=args[1:], prog="hybridmarl demos collect")
+    )

@@ -101,7 +101,9 @@ def _configure_host_devices() -> None:
     if "xla_force_host_platform_device_count" not in flags and "jax" not in sys.modules:
         n = os.cpu_count() or 1
         if n > 1:
-            os.environ["XLA_FLAGS"] = (flags + f" --xla_force_host_platform_device_count={min(n, 8)}").strip()
+            os.environ["XLA_FLAGS"] = (
+                flags + f" --xla_force_host_platform_device_count={min(n, 8)}"
+            ).strip()
 
 
 def _one_line(err: BaseException) -> str:

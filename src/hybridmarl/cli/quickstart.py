@@ -48,7 +48,9 @@ ALGO = "hybrid"
 DEFAULT_PRESET = "quick"
 #: Config fields that do not change what a run learns: a finished run that differs from the
 #: asked-for settings only in these is reused.
-_NOT_COMPARED = frozenset({"run_dir", "name", "resume", "progress", "tensorboard", "keep_checkpoints"})
+_NOT_COMPARED = frozenset(
+    {"run_dir", "name", "resume", "progress", "tensorboard", "keep_checkpoints"}
+)
 
 
 @dataclass(frozen=True)
@@ -90,11 +92,17 @@ class QuickstartConfig:
 
 
 def default_run_dir(
-    scenario: str, demonstrator: str, seed: int, preset: str = DEFAULT_PRESET, setting: str = "sparcraft"
+    scenario: str,
+    demonstrator: str,
+    seed: int,
+    preset: str = DEFAULT_PRESET,
+    setting: str = "sparcraft",
 ) -> Path:
     """The quickstart's run directory for these settings: every seed, preset and setting has its
     own, so a run of one is never taken for a run of another."""
-    suffix = ("" if preset == DEFAULT_PRESET else f"-{preset}") + ("" if setting == "sparcraft" else f"-{setting}")
+    suffix = ("" if preset == DEFAULT_PRESET else f"-{preset}") + (
+        "" if setting == "sparcraft" else f"-{setting}"
+    )
     return Path("runs") / f"quickstart-{scenario}-{demonstrator}{suffix}-s{seed}"
 
 
@@ -131,7 +139,9 @@ def check_run_dir(run_dir: Path, config: Any) -> None:
         return
     doc = read_run_config(run_dir)
     if doc.get("algo") != ALGO:
-        raise UserError(f"{run_dir} holds a {doc.get('algo')!r} run, not a {ALGO!r} run: choose another --run-dir")
+        raise UserError(
+            f"{run_dir} holds a {doc.get('algo')!r} run, not a {ALGO!r} run: choose another --run-dir"
+        )
     diff = settings_mismatch(doc.get("config", {}), config_to_dict(config))
     if diff is not None:
         field, old, new = diff
@@ -141,7 +151,9 @@ def check_run_dir(run_dir: Path, config: Any) -> None:
         )
 
 
-def training_config(cfg: QuickstartConfig, demonstrator: str, enemy: str, run_dir: Path, resume: bool) -> Any:
+def training_config(
+    cfg: QuickstartConfig, demonstrator: str, enemy: str, run_dir: Path, resume: bool
+) -> Any:
     """The hybrid learner's config for ``cfg``: its preset, then the quickstart's settings."""
     from hybridmarl.algos import algo_module
 
@@ -150,8 +162,14 @@ def training_config(cfg: QuickstartConfig, demonstrator: str, enemy: str, run_di
         raise UserError(f"unknown preset {cfg.preset!r} (known: {', '.join(mod.PRESETS)})")
     base = mod.PRESETS[cfg.preset]("combat")
     changes: dict[str, Any] = {
-        "scenario": cfg.scenario, "demonstrator": demonstrator, "enemy": enemy, "seed": cfg.seed,
-        "setting": cfg.setting, "run_dir": str(run_dir), "resume": resume, "progress": cfg.progress,
+        "scenario": cfg.scenario,
+        "demonstrator": demonstrator,
+        "enemy": enemy,
+        "seed": cfg.seed,
+        "setting": cfg.setting,
+        "run_dir": str(run_dir),
+        "resume": resume,
+        "progress": cfg.progress,
     }
     if importlib.util.find_spec("tensorboardX") is None:
         changes["tensorboard"] = False  # event files need the "tensorboard" extra
@@ -173,15 +191,28 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     from hybridmarl.validate import COUNT, SEED, check_values, optional
 
     check_values(
-        {"n": cfg.n, "seed": cfg.seed, "replay_seed": cfg.replay_seed, "total_episodes": cfg.total_episodes},
+        {
+            "n": cfg.n,
+            "seed": cfg.seed,
+            "replay_seed": cfg.replay_seed,
+            "total_episodes": cfg.total_episodes,
+        },
         {"n": COUNT, "seed": SEED, "replay_seed": SEED, "total_episodes": optional(COUNT)},
     )
     demo = canonical_script("combat", cfg.demonstrator)
     enemy = canonical_script("combat", cfg.enemy) if cfg.enemy else default_enemy(demo)
     setting = get_setting(cfg.setting).name
-    make_task(TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy, setting=setting))  # validates the scenario
-    run_dir = Path(cfg.run_dir) if cfg.run_dir else default_run_dir(cfg.scenario, demo, cfg.seed, cfg.preset, setting)
-    train_cfg = training_config(cfg, demo, enemy, run_dir, resume=latest_checkpoint(run_dir) is not None)
+    make_task(
+        TaskSpec(env="combat", scenario=cfg.scenario, enemy=enemy, setting=setting)
+    )  # validates the scenario
+    run_dir = (
+        Path(cfg.run_dir)
+        if cfg.run_dir
+        else default_run_dir(cfg.scenario, demo, cfg.seed, cfg.preset, setting)
+    )
+    train_cfg = training_config(
+        cfg, demo, enemy, run_dir, resume=latest_checkpoint(run_dir) is not None
+    )
     check_run_dir(run_dir, train_cfg)
     t0 = time.time()
 
@@ -205,10 +236,16 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     if (run_dir / "eval.json").is_file():
         train_doc = json.loads((run_dir / "eval.json").read_text())
     doc = {
-        "scenario": bundle.spec.scenario, "demonstrator": demo, "enemy": enemy, "n": cfg.n, "seed": cfg.seed,
-        "preset": cfg.preset, "setting": bundle.spec.setting,
+        "scenario": bundle.spec.scenario,
+        "demonstrator": demo,
+        "enemy": enemy,
+        "n": cfg.n,
+        "seed": cfg.seed,
+        "preset": cfg.preset,
+        "setting": bundle.spec.setting,
         "episodes_trained": meta.get("episodes"),
-        "train_wall_s": train_doc.get("wall_s"), "train_cpu_s": train_doc.get("cpu_s"),
+        "train_wall_s": train_doc.get("wall_s"),
+        "train_cpu_s": train_doc.get("cpu_s"),
         "rows": {
             "D": {k: res_d[k] for k in ("W", "W_ci95", "R", "R_ci95")},
             "Ours": {k: res_ours[k] for k in ("W", "W_ci95", "R", "R_ci95")},
@@ -240,8 +277,18 @@ def run_quickstart(cfg: QuickstartConfig) -> int:
     written = [run_dir / "comparison.json", run_dir / "comparison.md"]
     if (run_dir / "curve.png").is_file():
         written.append(run_dir / "curve.png")
-    if importlib.util.find_spec("PIL") is not None and importlib.util.find_spec("imageio") is not None:
-        run_replay(ReplayConfig(run_dir=str(run_dir), enemy=enemy, seed=cfg.replay_seed, out=str(run_dir / "replay.gif")))
+    if (
+        importlib.util.find_spec("PIL") is not None
+        and importlib.util.find_spec("imageio") is not None
+    ):
+        run_replay(
+            ReplayConfig(
+                run_dir=str(run_dir),
+                enemy=enemy,
+                seed=cfg.replay_seed,
+                out=str(run_dir / "replay.gif"),
+            )
+        )
         written.append(run_dir / "replay.gif")
     else:
         print("no replay.gif: it needs the 'video' extra (pip install 'hybridmarl[video]')")

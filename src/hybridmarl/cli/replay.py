@@ -299,7 +299,9 @@ def _validate(cfg: ReplayConfig) -> str:
                 canonical_name(name)
             except KeyError as e:
                 raise UserError(f"{who}: {e.args[0]}") from None
-        _resolve_scenario(cfg.scenario, cfg.setting)  # InputError (a UserError) with one line if bad
+        _resolve_scenario(
+            cfg.scenario, cfg.setting
+        )  # InputError (a UserError) with one line if bad
     else:
         _tj_demonstrator(cfg.ours or "yield-before-junction")
         if cfg.p_arrive is not None and not 0.0 <= float(cfg.p_arrive) <= 1.0:
@@ -314,7 +316,9 @@ class _Trained:
     cfg: ReplayConfig  # the replay settings with the run's env, scenario and setting
     act: Callable[[jax.Array, Any], jax.Array]  # the actor's legal argmax, an env policy
     probs: Callable[[Any], jax.Array]  # state -> [n, A] the actor's action probabilities
-    alg1: Callable[[], Callable[[jax.Array, Any], dict[str, jax.Array]] | None]  # builds _alg1_choice
+    alg1: Callable[
+        [], Callable[[jax.Array, Any], dict[str, jax.Array]] | None
+    ]  # builds _alg1_choice
 
 
 def _trained_policy(cfg: ReplayConfig) -> _Trained:
@@ -333,7 +337,9 @@ def _trained_policy(cfg: ReplayConfig) -> _Trained:
 
     def act(key: jax.Array, state: Any) -> jax.Array:
         del key
-        return nets.actor_actions(module, variables, task.observe(state)[None], task.avail(state)[None])[0]
+        return nets.actor_actions(
+            module, variables, task.observe(state)[None], task.avail(state)[None]
+        )[0]
 
     def probs(state: Any) -> jax.Array:
         logits = nets.apply_eval(module, variables, task.observe(state))
@@ -345,16 +351,24 @@ def _trained_policy(cfg: ReplayConfig) -> _Trained:
         return _alg1_choice(run_dir, bundle.config, task)
 
     if spec.env == "combat":
-        cfg = dataclasses.replace(cfg, env="combat", scenario=spec.scenario, ours=None, setting=spec.setting)
+        cfg = dataclasses.replace(
+            cfg, env="combat", scenario=spec.scenario, ours=None, setting=spec.setting
+        )
     else:
         cfg = dataclasses.replace(
-            cfg, env="traffic_junction", p_arrive=spec.p_arrive, time_penalty=spec.time_penalty, ours=None,
+            cfg,
+            env="traffic_junction",
+            p_arrive=spec.p_arrive,
+            time_penalty=spec.time_penalty,
+            ours=None,
             setting=spec.setting,
         )
     return _Trained(cfg, act, probs, alg1)
 
 
-def _alg1_choice(run_dir: Path, doc: dict[str, Any], task: Any) -> Callable[[jax.Array, Any], dict[str, jax.Array]] | None:
+def _alg1_choice(
+    run_dir: Path, doc: dict[str, Any], task: Any
+) -> Callable[[jax.Array, Any], dict[str, jax.Array]] | None:
     """For a hybrid run: ``(key, state) -> {"actions" [n], "start" [n], "q_start", "q_final"}``,
     Alg. 1's joint action Ã at ``state`` as the run's training computes it (its options: start
     policy, iterations, look-ahead; the newest checkpoint's actor, critic and clone), with the
@@ -377,10 +391,14 @@ def _alg1_choice(run_dir: Path, doc: dict[str, Any], task: Any) -> Callable[[jax
     def net(prefix: str, module: nets.MLP, in_dim: int) -> dict[str, Any] | None:
         if not any(k.startswith(prefix + ".") for k in arrays):
             return None
-        template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, in_dim)), train=False))
+        template = jax.eval_shape(
+            lambda: module.init(jax.random.key(0), jnp.zeros((2, in_dim)), train=False)
+        )
         return {
             "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),
-            "batch_stats": unflatten_named(template["batch_stats"], subtree(arrays, f"{prefix}.batch_stats")),
+            "batch_stats": unflatten_named(
+                template["batch_stats"], subtree(arrays, f"{prefix}.batch_stats")
+            ),
         }
 
     actor = net("actor", learner.actor_mod, task.obs_dim)
@@ -390,11 +408,20 @@ def _alg1_choice(run_dir: Path, doc: dict[str, Any], task: Any) -> Callable[[jax
         raise ValueError(f"{run_dir}: the newest checkpoint lacks the actor or the critic")
     demo = learner.demo_script_fn
     if hcfg.brd_start == "demonstrator" and demo is None and clone is None:
-        raise ValueError(f"{run_dir}: Alg. 1 starts from the demonstrator's clone, which the checkpoint lacks")
+        raise ValueError(
+            f"{run_dir}: Alg. 1 starts from the demonstrator's clone, which the checkpoint lacks"
+        )
 
-    def choose(actor: Any, critic: Any, clone: Any, key: jax.Array, state: Any) -> dict[str, jax.Array]:
+    def choose(
+        actor: Any, critic: Any, clone: Any, key: jax.Array, state: Any
+    ) -> dict[str, jax.Array]:
         q_fn = learner.brd_q_fn(
-            actor, critic, clone, gamma=hcfg.gamma, lookahead=simulated_steps(hcfg), continuation=continuation_policy(hcfg)
+            actor,
+            critic,
+            clone,
+            gamma=hcfg.gamma,
+            lookahead=simulated_steps(hcfg),
+            continuation=continuation_policy(hcfg),
         )
         k_demo, k_sim = jax.random.split(key)
         obs, legal = task.observe(state)[None], task.avail(state)[None]
@@ -406,9 +433,20 @@ def _alg1_choice(run_dir: Path, doc: dict[str, Any], task: Any) -> Callable[[jax
             start = nets.actor_actions(learner.actor_mod, clone, obs, legal)
         states = jax.tree.map(lambda x: x[None], state)
         res = best_response_dynamics(
-            q_fn, k_sim[None], states, start, legal, hcfg.brd_iterations, work_batch=hcfg.brd_work_batch
+            q_fn,
+            k_sim[None],
+            states,
+            start,
+            legal,
+            hcfg.brd_iterations,
+            work_batch=hcfg.brd_work_batch,
         )
-        return {"actions": res.actions[0], "start": start[0], "q_start": res.q_init[0], "q_final": res.q_final[0]}
+        return {
+            "actions": res.actions[0],
+            "start": start[0],
+            "q_start": res.q_init[0],
+            "q_final": res.q_final[0],
+        }
 
     jitted = jax.jit(choose)
     return lambda key, state: jitted(actor, critic, clone, key, state)
@@ -457,7 +495,9 @@ def _write_video(cfg: ReplayConfig, env: str, trained: _Trained | None) -> dict[
         else:
             ours = trained.act if trained else (cfg.ours or "yield-before-junction")
             p_arrive = get_setting(cfg.setting).p_arrive if cfg.p_arrive is None else cfg.p_arrive
-            frames, summary = record_tj_episode(ours, p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty)
+            frames, summary = record_tj_episode(
+                ours, p_arrive, cfg.seed, cfg.max_steps, time_penalty=cfg.time_penalty
+            )
         summary["setting"] = cfg.setting
         try:
             path = write_video(_hold_last(frames, cfg.fps), cfg.out, fps=cfg.fps)
@@ -475,16 +515,27 @@ def _write_html(cfg: ReplayConfig, env: str, trained: _Trained | None) -> dict[s
     if trained:
         try:
             alg1 = trained.alg1()
-        except (ValueError, KeyError, TypeError) as e:  # an older or foreign run's config or checkpoint
-            print(f"hybridmarl: warning: Alg. 1's joint action is not shown: {str(e).splitlines()[0] if str(e) else type(e).__name__}", file=sys.stderr)
+        except (
+            ValueError,
+            KeyError,
+            TypeError,
+        ) as e:  # an older or foreign run's config or checkpoint
+            print(
+                f"hybridmarl: warning: Alg. 1's joint action is not shown: {str(e).splitlines()[0] if str(e) else type(e).__name__}",
+                file=sys.stderr,
+            )
     who = f"policy {cfg.run_dir}" if trained else None
     if env == "combat":
         from hybridmarl.envs.combat import Combat
 
-        combat = Combat(_resolve_scenario(cfg.scenario, cfg.setting), enemy=cfg.enemy, setting=cfg.setting)
+        combat = Combat(
+            _resolve_scenario(cfg.scenario, cfg.setting), enemy=cfg.enemy, setting=cfg.setting
+        )
         ours_name = cfg.ours or "attack-closest"
         policy = trained.act if trained else combat.script_policy(ours_name)
-        timeline, last = record_combat_timeline(combat, policy, cfg.seed, cfg.max_steps, probs_fn=probs, alg1_fn=alg1)
+        timeline, last = record_combat_timeline(
+            combat, policy, cfg.seed, cfg.max_steps, probs_fn=probs, alg1_fn=alg1
+        )
         frames = timeline["frames"]
         end = frames[-1]
         result = "unfinished"
@@ -515,10 +566,14 @@ def _write_html(cfg: ReplayConfig, env: str, trained: _Trained | None) -> dict[s
         from hybridmarl.envs.traffic_junction import TrafficJunction
 
         p_arrive = get_setting(cfg.setting).p_arrive if cfg.p_arrive is None else cfg.p_arrive
-        params = TrafficJunction().default_params.replace(p_arrive=float(p_arrive), time_penalty=bool(cfg.time_penalty))
+        params = TrafficJunction().default_params.replace(
+            p_arrive=float(p_arrive), time_penalty=bool(cfg.time_penalty)
+        )
         ours_name = cfg.ours or "yield-before-junction"
         policy = trained.act if trained else _tj_demonstrator(ours_name)
-        timeline, last = record_tj_timeline(policy, params, cfg.seed, cfg.max_steps, probs_fn=probs, alg1_fn=alg1)
+        timeline, last = record_tj_timeline(
+            policy, params, cfg.seed, cfg.max_steps, probs_fn=probs, alg1_fn=alg1
+        )
         frames = timeline["frames"]
         who = who or ours_name
         collisions = sum(f["collisions"] for f in frames)

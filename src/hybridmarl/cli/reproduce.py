@@ -119,11 +119,24 @@ def run_reproduce(cfg: ReproduceConfig, *, live: bool | None = None) -> int:
     if cfg.gpus_per_train_task < 0:
         raise UserError("--gpus-per-train-task must be non-negative")
     sel = grid.Selection(
-        scenarios=_split(cfg.scenarios), demonstrators=_demonstrators(cfg.demonstrators), rows=_split(cfg.rows),
-        seeds=_seeds(cfg.seeds), search_budget=cfg.search_budget, search_model=cfg.search_model,
+        scenarios=_split(cfg.scenarios),
+        demonstrators=_demonstrators(cfg.demonstrators),
+        rows=_split(cfg.rows),
+        seeds=_seeds(cfg.seeds),
+        search_budget=cfg.search_budget,
+        search_model=cfg.search_model,
     )
     the_grid = grid.expand(tables, cfg.budget, setting, sel, drop_empty=what == "all")
-    executor = None if cfg.status else make_executor(cfg.executor, address=cfg.address, workers=cfg.workers, gpus_per_train_task=cfg.gpus_per_train_task)
+    executor = (
+        None
+        if cfg.status
+        else make_executor(
+            cfg.executor,
+            address=cfg.address,
+            workers=cfg.workers,
+            gpus_per_train_task=cfg.gpus_per_train_task,
+        )
+    )
     out = Path(cfg.out) if cfg.out else Path("runs") / f"reproduce-{cfg.budget}-{setting}"
     driver.check_output_folder(out, the_grid, force=cfg.force)
     state = driver.GridState(out, the_grid)
@@ -145,10 +158,15 @@ def run_reproduce(cfg: ReproduceConfig, *, live: bool | None = None) -> int:
     done = sum(1 for k in the_grid.tasks if state.status(k) == "done")
     print(f"{done}/{len(the_grid.tasks)} tasks done, {len(state.failures)} failed ({out})")
     if interrupted:
-        print("interrupted: rerun the same command to continue (finished tasks are kept, training resumes)", file=sys.stderr)
+        print(
+            "interrupted: rerun the same command to continue (finished tasks are kept, training resumes)",
+            file=sys.stderr,
+        )
         return 130
     for key, f in state.failures.items():
-        print(f"failed: {the_grid.tasks[key].label}: {f['error']} (log: {f['log']})", file=sys.stderr)
+        print(
+            f"failed: {the_grid.tasks[key].label}: {f['error']} (log: {f['log']})", file=sys.stderr
+        )
     if state.failures:
         print("rerun the same command to retry the failed tasks", file=sys.stderr)
         return 1

@@ -63,12 +63,17 @@ def task_sizes(task: Any) -> tuple[int, int]:
     observation, float32, and legal-action mask, bool). Traces the env's reset; runs nothing."""
     from hybridmarl.training.task import flatten_named
 
-    state = sum(int(np.prod(v.shape)) * np.dtype(v.dtype).itemsize for v in flatten_named(task.state_template()).values())
+    state = sum(
+        int(np.prod(v.shape)) * np.dtype(v.dtype).itemsize
+        for v in flatten_named(task.state_template()).values()
+    )
     observation = task.num_agents * (4 * task.obs_dim + task.num_actions)
     return state, observation
 
 
-def train_memory(cfg: Any, state_bytes: int, observation_bytes: int, num_agents: int, num_actions: int) -> dict[str, int]:
+def train_memory(
+    cfg: Any, state_bytes: int, observation_bytes: int, num_agents: int, num_actions: int
+) -> dict[str, int]:
     """Estimated peak bytes of the arrays a training run's sizes set, by the option that sets
     them, each held :data:`TRAIN_COPIES` times (fields a learner does not have count 0):
 
@@ -83,7 +88,9 @@ def train_memory(cfg: Any, state_bytes: int, observation_bytes: int, num_agents:
 
     def field(name: str) -> int:
         value = getattr(cfg, name, 0)
-        return int(value) if isinstance(value, int | np.integer) and not isinstance(value, bool) else 0
+        return (
+            int(value) if isinstance(value, int | np.integer) and not isinstance(value, bool) else 0
+        )
 
     transitions = hasattr(cfg, "target_update_every")  # DQfD, OGTL: (state, next state) rows
     demos = field("demo_observations")
@@ -93,7 +100,11 @@ def train_memory(cfg: Any, state_bytes: int, observation_bytes: int, num_agents:
         "buffer_size": buffer_rows * state_bytes * (2 if transitions else 1),
         pretrain: field(pretrain) * state_bytes,
         "demo_observations": demos * (observation_bytes + state_bytes),
-        "num_envs": field("num_envs") * (max(field("chunk_steps"), 1) * observation_bytes + num_agents * num_actions * state_bytes),
+        "num_envs": field("num_envs")
+        * (
+            max(field("chunk_steps"), 1) * observation_bytes
+            + num_agents * num_actions * state_bytes
+        ),
     }
     return {option: TRAIN_COPIES * n_bytes for option, n_bytes in once.items()}
 

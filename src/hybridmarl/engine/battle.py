@@ -72,7 +72,9 @@ class BattleResults:
                     "turns": int(k),
                     "unit_hp": [int(h) for h in hp],
                 }
-                for w, t, k, hp in zip(self.winner, self.final_time, self.turns, self.unit_hp, strict=True)
+                for w, t, k, hp in zip(
+                    self.winner, self.final_time, self.turns, self.unit_hp, strict=True
+                )
             ],
             "summary": self.summary(),
         }
@@ -127,8 +129,15 @@ def run_battles(
         # Pad the last chunk to the batch size so every chunk reuses one compiled program.
         m = stop - start
         if n > batch_size and m < batch_size:
-            chunk = jax.tree.map(lambda a, m=m: np.concatenate([a, np.repeat(a[-1:], batch_size - m, 0)]), chunk)
-            kchunk = np.concatenate([np.asarray(keys[start:stop]), np.repeat(np.asarray(keys[stop - 1 : stop]), batch_size - m, 0)])
+            chunk = jax.tree.map(
+                lambda a, m=m: np.concatenate([a, np.repeat(a[-1:], batch_size - m, 0)]), chunk
+            )
+            kchunk = np.concatenate(
+                [
+                    np.asarray(keys[start:stop]),
+                    np.repeat(np.asarray(keys[stop - 1 : stop]), batch_size - m, 0),
+                ]
+            )
         else:
             kchunk = keys[start:stop]
         res = game.play_batch(jnp.asarray(kchunk), chunk, rules, p0c, p1c)
@@ -166,7 +175,9 @@ def _progress(enabled: bool, total: int, label: str):
         return None
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    prog = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), transient=False)
+    prog = Progress(
+        TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), transient=False
+    )
     prog.start()
     task = prog.add_task(label, total=total)
     return prog, task

@@ -82,7 +82,9 @@ def batched_player(p0: str, p1: str, rules_static: tuple) -> Callable:
     s0, s1 = get_script(p0), get_script(p1)
 
     def one(key, state, walkable):
-        rules = Rules(walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns)
+        rules = Rules(
+            walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns
+        )
         final, n = play_game(key, state, rules, s0, s1)
         return result_of(final, n)
 
@@ -178,7 +180,9 @@ def sel_mask(mask: jax.Array):
 
 
 @functools.lru_cache(maxsize=64)
-def pooled_player(p0: str, p1: str, rules_static: tuple, pool_size: int, devices: int = 1) -> Callable:
+def pooled_player(
+    p0: str, p1: str, rules_static: tuple, pool_size: int, devices: int = 1
+) -> Callable:
     """Jitted ``(keys [N], states [N], walkable) -> GameResult [N]`` over a refilling pool.
 
     With ``devices > 1`` the games are split evenly across that many (host) devices with ``pmap``
@@ -188,7 +192,9 @@ def pooled_player(p0: str, p1: str, rules_static: tuple, pool_size: int, devices
     s0, s1 = get_script(p0), get_script(p1)
 
     def run(keys, states, walkable):
-        rules = Rules(walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns)
+        rules = Rules(
+            walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns
+        )
         return play_pool(keys, states, rules, s0, s1, pool_size)
 
     if devices <= 1:

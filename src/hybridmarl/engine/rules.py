@@ -174,9 +174,7 @@ def legal_actions(ctx: TurnContext, p: int) -> jnp.ndarray:
     reload = ~can_atk
     moves = ctx.move_ok[p]
     anything = attacks.any(axis=1) | reload | moves.any(axis=1)
-    mask = jnp.concatenate(
-        [(~anything)[:, None], reload[:, None], moves, attacks], axis=1
-    )
+    mask = jnp.concatenate([(~anything)[:, None], reload[:, None], moves, attacks], axis=1)
     return mask & ctx.acting[p][:, None]
 
 
@@ -187,7 +185,9 @@ def first_legal_action(ctx: TurnContext, p: int) -> jnp.ndarray:
     attacks = ctx.in_range[p] & ctx.can_attack_now[p][:, None]
     first_target, any_attack = first_in_order(attacks, ctx.order[q][None, :])
     moves = ctx.move_ok[p]
-    first_move = jnp.min(jnp.where(moves, jnp.arange(4, dtype=jnp.int32), 4), axis=1) + MOVE_ACTIONS[0]
+    first_move = (
+        jnp.min(jnp.where(moves, jnp.arange(4, dtype=jnp.int32), 4), axis=1) + MOVE_ACTIONS[0]
+    )
     return jnp.where(
         any_attack,
         ATTACK_BASE + first_target,
@@ -256,7 +256,9 @@ def _apply_player(
     new_tm = jnp.where(
         attack_timing,
         atk_tm,
-        jnp.where(is_move, mv_tm, jnp.where(is_reload, ta, jnp.where(as_pass, t + U.PASS_DURATION, tm))),
+        jnp.where(
+            is_move, mv_tm, jnp.where(is_reload, ta, jnp.where(as_pass, t + U.PASS_DURATION, tm))
+        ),
     )
     new_ta = jnp.where(
         attack_timing,

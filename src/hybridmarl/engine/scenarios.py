@@ -71,9 +71,7 @@ def validate_units(
                 raise InputError(f"{w}: missing key {k!r}")
         typ = u["type"]
         if not isinstance(typ, str) or typ not in U.TYPE_INDEX:
-            raise InputError(
-                f"{w}: unknown unit type {typ!r} (known: {', '.join(U.TYPE_NAMES)})"
-            )
+            raise InputError(f"{w}: unknown unit type {typ!r} (known: {', '.join(U.TYPE_NAMES)})")
         player = u["player"]
         if isinstance(player, bool) or player not in (0, 1):
             raise InputError(f"{w}: player must be 0 or 1, got {player!r}")
@@ -114,7 +112,9 @@ def parse_states_document(doc: Any, *, walkable: np.ndarray | None = None) -> li
     return out
 
 
-def load_states_file(path: str | Path, *, walkable: np.ndarray | None = None) -> list[list[UnitSpec]]:
+def load_states_file(
+    path: str | Path, *, walkable: np.ndarray | None = None
+) -> list[list[UnitSpec]]:
     """Read and validate a states JSON file; any problem raises ``InputError`` with one line."""
     from hybridmarl.io import read_user_json
 
@@ -138,7 +138,9 @@ def states_to_document(states: Sequence[Sequence[UnitSpec]]) -> dict:
 # ----------------------------------------------------------------------------- generators
 
 
-def _alternate(side0: list[tuple[str, int, int]], side1: list[tuple[str, int, int]]) -> list[UnitSpec]:
+def _alternate(
+    side0: list[tuple[str, int, int]], side1: list[tuple[str, int, int]]
+) -> list[UnitSpec]:
     """Interleave P0, P1, P0, ... as SparCraft's generators add units; leftovers at the end."""
     out: list[UnitSpec] = []
     for i in range(max(len(side0), len(side1))):
@@ -260,16 +262,25 @@ class Scenario:
         while len(out) < n:
             if self.kind == "disks":
                 out.append(
-                    two_disks(rng, self.side0, self.side1, self.center0, self.center1, self.radius0, self.radius1)
+                    two_disks(
+                        rng,
+                        self.side0,
+                        self.side1,
+                        self.center0,
+                        self.center1,
+                        self.radius0,
+                        self.radius1,
+                    )
                 )
             elif self.kind == "separated":
-                out += separated_state(rng, self.spread[0], self.spread[1], self.center0, self.center1, self.side0)
+                out += separated_state(
+                    rng, self.spread[0], self.spread[1], self.center0, self.center1, self.side0
+                )
             elif self.kind == "symmetric":
                 out.append(state_symmetric(rng, self.spread[0], self.spread[1], self.side0))
             else:
                 raise InputError(f"scenario {self.name!r}: unknown kind {self.kind!r}")
         return out[:n]
-
 
     def generate_arrays(self, n: int, seed: int) -> dict[str, np.ndarray]:
         """The batch arrays of ``generate(n, seed)`` (``state.build_batch_arrays``), drawn from the
@@ -441,7 +452,11 @@ def named_scenario(name: str, setting: Any = None) -> Scenario:
 
 
 def _pair(v: Any, what: str, *, low: int | None = None) -> tuple[int, int]:
-    if not (isinstance(v, list) and len(v) == 2 and all(isinstance(c, int) and not isinstance(c, bool) for c in v)):
+    if not (
+        isinstance(v, list)
+        and len(v) == 2
+        and all(isinstance(c, int) and not isinstance(c, bool) for c in v)
+    ):
         raise InputError(f"scenario file: {what} must be [x, y] integers, got {v!r}")
     if low is not None and min(v) < low:
         raise InputError(f"scenario file: {what} must be at least {low} in x and y, got {v!r}")
@@ -450,7 +465,9 @@ def _pair(v: Any, what: str, *, low: int | None = None) -> tuple[int, int]:
 
 def _radius(v: Any, what: str) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-        raise InputError(f"scenario file: {what} must be an integer number of pixels, at least 0, got {v!r}")
+        raise InputError(
+            f"scenario file: {what} must be an integer number of pixels, at least 0, got {v!r}"
+        )
     return v
 
 
@@ -460,9 +477,11 @@ def _side(v: Any, what: str) -> tuple[tuple[str, int], ...]:
     out = []
     for i, e in enumerate(v):
         if not isinstance(e, dict) or "type" not in e or "count" not in e:
-            raise InputError(f"scenario file: {what}[{i}] must be {{\"type\": ..., \"count\": ...}}")
+            raise InputError(f'scenario file: {what}[{i}] must be {{"type": ..., "count": ...}}')
         if not isinstance(e["type"], str) or e["type"] not in U.TYPE_INDEX:
-            raise InputError(f"scenario file: {what}[{i}]: unknown unit type {e['type']!r} (known: {', '.join(U.TYPE_NAMES)})")
+            raise InputError(
+                f"scenario file: {what}[{i}]: unknown unit type {e['type']!r} (known: {', '.join(U.TYPE_NAMES)})"
+            )
         c = e["count"]
         if isinstance(c, bool) or not isinstance(c, int) or c < 1:
             raise InputError(f"scenario file: {what}[{i}]: count must be a positive integer")
@@ -475,13 +494,13 @@ def _side(v: Any, what: str) -> tuple[tuple[str, int], ...]:
 def load_scenario_file(path: str | Path) -> Scenario:
     """A scenario from JSON::
 
-        {"name": "zealots-vs-dragoons",
-         "kind": "disks",                       # or "separated", "symmetric"
-         "player0": [{"type": "Protoss_Zealot", "count": 8}],
-         "player1": [{"type": "Protoss_Dragoon", "count": 6}],
-         "center0": [565, 352], "center1": [715, 352],   # disks / separated
-         "radius0": 100, "radius1": 100,                  # disks
-         "spread": [128, 128]}                            # separated / symmetric
+    {"name": "zealots-vs-dragoons",
+     "kind": "disks",                       # or "separated", "symmetric"
+     "player0": [{"type": "Protoss_Zealot", "count": 8}],
+     "player1": [{"type": "Protoss_Dragoon", "count": 6}],
+     "center0": [565, 352], "center1": [715, 352],   # disks / separated
+     "radius0": 100, "radius1": 100,                  # disks
+     "spread": [128, 128]}                            # separated / symmetric
     """
     from hybridmarl.io import read_user_json
 
@@ -490,11 +509,24 @@ def load_scenario_file(path: str | Path) -> Scenario:
     try:
         return _scenario_from_document(doc, p.stem)
     except InputError as e:
-        raise InputError(f"scenario file {str(p)!r}: {str(e).removeprefix('scenario file: ')}") from None
+        raise InputError(
+            f"scenario file {str(p)!r}: {str(e).removeprefix('scenario file: ')}"
+        ) from None
 
 
 #: The keys of a scenario file (any other is a typo, refused rather than ignored).
-SCENARIO_KEYS = ("name", "description", "kind", "player0", "player1", "center0", "center1", "radius0", "radius1", "spread")
+SCENARIO_KEYS = (
+    "name",
+    "description",
+    "kind",
+    "player0",
+    "player1",
+    "center0",
+    "center1",
+    "radius0",
+    "radius1",
+    "spread",
+)
 
 
 def _scenario_from_document(doc: dict[str, Any], stem: str) -> Scenario:
@@ -530,21 +562,31 @@ def _check_fits(sc: Scenario) -> None:
     if sc.kind == "disks":
         for c, r, who in ((sc.center0, sc.radius0, "player0"), (sc.center1, sc.radius1, "player1")):
             if r < 0 or c[0] - r < 0 or c[1] - r < 0 or c[0] + r >= w or c[1] + r >= h:
-                raise InputError(f"scenario file: {who}'s disk (centre {c}, radius {r}) leaves the {w}x{h} map")
+                raise InputError(
+                    f"scenario file: {who}'s disk (centre {c}, radius {r}) leaves the {w}x{h} map"
+                )
     else:
         # Offsets are uniform in [-spread, spread - 1], and mirrored: units land within
         # [c - spread, c + spread] of their centre.
         centres = (sc.center0, sc.center1) if sc.kind == "separated" else (SYMMETRIC_CENTER,)
         for c in centres:
-            if c[0] - sc.spread[0] < 0 or c[1] - sc.spread[1] < 0 or c[0] + sc.spread[0] >= w or c[1] + sc.spread[1] >= h:
-                raise InputError(f"scenario file: spread {sc.spread} around {c} leaves the {w}x{h} map")
+            if (
+                c[0] - sc.spread[0] < 0
+                or c[1] - sc.spread[1] < 0
+                or c[0] + sc.spread[0] >= w
+                or c[1] + sc.spread[1] >= h
+            ):
+                raise InputError(
+                    f"scenario file: spread {sc.spread} around {c} leaves the {w}x{h} map"
+                )
 
 
-def resolve_scenario(name: str | None = None, path: str | None = None, setting: Any = None) -> Scenario:
+def resolve_scenario(
+    name: str | None = None, path: str | None = None, setting: Any = None
+) -> Scenario:
     """A scenario file (``path``) or the named scenario ``name`` under ``setting``."""
     if path:
         return load_scenario_file(path)
     if not name:
         raise InputError("give a scenario name (e.g. m5v5) or a scenario file")
     return named_scenario(name, setting)
-

@@ -81,7 +81,9 @@ def in_own_range(state: GameState, ctx: TurnContext, p: int, target: jax.Array) 
     return range_sq >= _gather_rows(ctx.enemy_d2(p), target)
 
 
-def _move_scores(state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array) -> jax.Array:
+def _move_scores(
+    state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array
+) -> jax.Array:
     """int32 [U, 4]: squared distance from (tx, ty) to stored position + unit direction vector."""
     nx = state.x[p][:, None] + jnp.asarray(DIR_X, jnp.int32)[None, :]
     ny = state.y[p][:, None] + jnp.asarray(DIR_Y, jnp.int32)[None, :]
@@ -90,14 +92,18 @@ def _move_scores(state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: 
     return dx * dx + dy * dy
 
 
-def move_toward(state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array) -> tuple[jax.Array, jax.Array]:
+def move_toward(
+    state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """(action code [U], any legal move [U]) of the legal MOVE closest to (tx, ty)."""
     ok = ctx.move_ok[p]
     k = jnp.min(jnp.where(ok, (_move_scores(state, ctx, p, tx, ty) << 2) | _DIRS, _BIG), axis=1)
     return ((k & 3) + MOVE_ACTIONS[0]).astype(jnp.int32), k < _BIG
 
 
-def move_away(state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array) -> tuple[jax.Array, jax.Array]:
+def move_away(
+    state: GameState, ctx: TurnContext, p: int, tx: jax.Array, ty: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """(action code [U], any candidate [U]) of the legal MOVE furthest from (tx, ty), strict > 0."""
     ok = ctx.move_ok[p]
     # First maximum: max of score << 2 | (3 - dir).
@@ -147,12 +153,16 @@ def _dpf_per_hp(state: GameState, q: int, hp: jax.Array) -> jax.Array:
     return dpf / jnp.maximum(hp, 1).astype(jnp.float32)
 
 
-def _with_attack(target_choice: Callable[[GameState, TurnContext, int, jax.Array], jax.Array], otherwise) -> Script:
+def _with_attack(
+    target_choice: Callable[[GameState, TurnContext, int, jax.Array], jax.Array], otherwise
+) -> Script:
     def script(key: jax.Array, state: GameState, ctx: TurnContext, p: int) -> jax.Array:
         del key
         mask = _attack_mask(ctx, p)
         target = target_choice(state, ctx, p, mask)
-        return jnp.where(mask.any(axis=1), ATTACK_BASE + target, otherwise(state, ctx, p)).astype(jnp.int32)
+        return jnp.where(mask.any(axis=1), ATTACK_BASE + target, otherwise(state, ctx, p)).astype(
+            jnp.int32
+        )
 
     return script
 
@@ -205,7 +215,9 @@ def _nok_targets(state: GameState, ctx: TurnContext, p: int) -> tuple[jax.Array,
 def nokdps(key: jax.Array, state: GameState, ctx: TurnContext, p: int) -> jax.Array:
     del key
     target, found = _nok_targets(state, ctx, p)
-    return jnp.where(found, ATTACK_BASE + target, _approach_or_reload(state, ctx, p)).astype(jnp.int32)
+    return jnp.where(found, ATTACK_BASE + target, _approach_or_reload(state, ctx, p)).astype(
+        jnp.int32
+    )
 
 
 def kiter_nokdps(key: jax.Array, state: GameState, ctx: TurnContext, p: int) -> jax.Array:
@@ -217,9 +229,9 @@ def kiter_nokdps(key: jax.Array, state: GameState, ctx: TurnContext, p: int) -> 
     in_range = in_own_range(state, ctx, p, closest)
     reload = ~ctx.can_attack_now[p] & in_range
     kite = _kite(state, ctx, p)
-    return jnp.where(
-        found, ATTACK_BASE + target, jnp.where(reload, RELOAD_ACTION, kite)
-    ).astype(jnp.int32)
+    return jnp.where(found, ATTACK_BASE + target, jnp.where(reload, RELOAD_ACTION, kite)).astype(
+        jnp.int32
+    )
 
 
 def cluster(key: jax.Array, state: GameState, ctx: TurnContext, p: int) -> jax.Array:
@@ -254,7 +266,9 @@ def attack_weakest_global(key: jax.Array, state: GameState, ctx: TurnContext, p:
     q = 1 - p
     alive = ctx.alive[q]
     slot = jnp.arange(alive.shape[0], dtype=jnp.int32)
-    target = (jnp.min(jnp.where(alive, (state.hp[q] << SLOT_BITS) | slot, _BIG)) & SLOT_MASK).astype(jnp.int32)
+    target = (
+        jnp.min(jnp.where(alive, (state.hp[q] << SLOT_BITS) | slot, _BIG)) & SLOT_MASK
+    ).astype(jnp.int32)
     size = state.x.shape[-1]
     targets = jnp.full(size, target)
     in_range = in_own_range(state, ctx, p, targets)

@@ -69,7 +69,9 @@ class Rules:
     max_turns: int = struct.field(pytree_node=False, default=20000)
 
 
-def default_walkable(width_px: int = DEFAULT_MAP_WIDTH_PX, height_px: int = DEFAULT_MAP_HEIGHT_PX) -> np.ndarray:
+def default_walkable(
+    width_px: int = DEFAULT_MAP_WIDTH_PX, height_px: int = DEFAULT_MAP_HEIGHT_PX
+) -> np.ndarray:
     return np.ones((height_px // WALK_TILE, width_px // WALK_TILE), dtype=bool)
 
 
@@ -104,7 +106,9 @@ def parse_ascii_map(text: str) -> np.ndarray:
     try:
         width, height = int(lines[0]), int(lines[1])
     except ValueError:
-        raise ValueError("map file: the first two lines must be the width and height in walk tiles") from None
+        raise ValueError(
+            "map file: the first two lines must be the width and height in walk tiles"
+        ) from None
     rows = lines[2:]
     if width <= 0 or height <= 0:
         raise ValueError(f"map file: width and height must be positive, got {width}x{height}")

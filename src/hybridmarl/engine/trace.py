@@ -97,7 +97,9 @@ def _turn_fn(p0: str, p1: str, stalemate_limit: int, overkill: str, max_turns: i
     s0, s1 = get_script(p0), get_script(p1)
 
     def f(key, state, walkable):
-        rules = Rules(walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns)
+        rules = Rules(
+            walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns
+        )
         new, actions, ctx = play_turn(key, state, rules, s0, s1)
         done = R.game_over(new, rules)
         return new, actions, ctx, done
@@ -113,7 +115,10 @@ def _describe(state: GameState, new: GameState, ctx, actions: np.ndarray, p: int
         j = code - R.ATTACK_BASE
         text = f"ATTACK target={int(state.uid[q, j])}"
         t = int(state.time)
-        if int(new.t_move[p, s]) == t + PASS_DURATION and int(new.t_attack[p, s]) == t + PASS_DURATION:
+        if (
+            int(new.t_move[p, s]) == t + PASS_DURATION
+            and int(new.t_attack[p, s]) == t + PASS_DURATION
+        ):
             # executed as a PASS: the target died earlier in the turn
             text += " [overkill->PASS]"
     elif code in R.MOVE_ACTIONS:
@@ -134,7 +139,13 @@ def record_trace(
     seed: int = 0,
 ) -> Trace:
     """Play ``state`` turn by turn with scripts ``p0``/``p1`` and record every turn."""
-    fn = _turn_fn(canonical_name(p0), canonical_name(p1), rules.stalemate_limit, rules.overkill, rules.max_turns)
+    fn = _turn_fn(
+        canonical_name(p0),
+        canonical_name(p1),
+        rules.stalemate_limit,
+        rules.overkill,
+        rules.max_turns,
+    )
     key = jax.random.PRNGKey(seed)
     trace = Trace(units=list(units))
     n_units = len(units)
@@ -163,7 +174,12 @@ def record_trace(
                     continue
                 hp[u] = max(int(nw.hp[p, s]), 0)
                 if nw.hp[p, s] > 0:
-                    alive[u] = (int(nw.x[p, s]), int(nw.y[p, s]), int(nw.t_move[p, s]), int(nw.t_attack[p, s]))
+                    alive[u] = (
+                        int(nw.x[p, s]),
+                        int(nw.y[p, s]),
+                        int(nw.t_move[p, s]),
+                        int(nw.t_attack[p, s]),
+                    )
         trace.turns.append(
             TurnRecord(int(st.turn), int(st.time), mover, lines, hp, alive, int(nw.time))
         )

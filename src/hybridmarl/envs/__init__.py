@@ -24,7 +24,11 @@ __all__ = ["ENV_NAMES", "canonical_env_name", "env_class", "make", "make_petting
 
 #: Canonical environment names accepted by :func:`make`.
 ENV_NAMES: tuple[str, ...] = ("combat", "traffic_junction")
-_ALIASES = {"combat_v0": "combat", "traffic_junction_v0": "traffic_junction", "tj": "traffic_junction"}
+_ALIASES = {
+    "combat_v0": "combat",
+    "traffic_junction_v0": "traffic_junction",
+    "tj": "traffic_junction",
+}
 
 
 def canonical_env_name(name: str) -> str:

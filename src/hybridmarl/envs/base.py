@@ -62,7 +62,14 @@ from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 import jax
 import numpy as np
 
-__all__ = ["LearningEnv", "MultiAgentEnv", "Policy", "StepResult", "canonical_policy_name", "split_noise"]
+__all__ = [
+    "LearningEnv",
+    "MultiAgentEnv",
+    "Policy",
+    "StepResult",
+    "canonical_policy_name",
+    "split_noise",
+]
 
 StateT = TypeVar("StateT")
 ParamsT = TypeVar("ParamsT")
@@ -140,7 +147,9 @@ class LearningEnv(MultiAgentEnv[StateT, ParamsT], Protocol[StateT, ParamsT]):
     has_enemy: ClassVar[bool]
 
     @classmethod
-    def from_spec(cls, spec: Any, enemy_script: Callable[..., jax.Array] | None = None) -> tuple[Any, Any]:
+    def from_spec(
+        cls, spec: Any, enemy_script: Callable[..., jax.Array] | None = None
+    ) -> tuple[Any, Any]:
         """``(env, params)`` built from a task description; ``enemy_script`` (an engine script)
         replaces ``spec.enemy`` where the env has an enemy."""
         ...

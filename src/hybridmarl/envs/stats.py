@@ -54,13 +54,22 @@ def paired_wins(a_won: np.ndarray, b_won: np.ndarray, z: float = Z95) -> dict[st
     differences, the discordant counts and McNemar's exact p."""
     a, b = np.asarray(a_won, bool), np.asarray(b_won, bool)
     if a.shape != b.shape or a.ndim != 1 or a.size == 0:
-        raise ValueError(f"need two equal, non-empty vectors of outcomes, got shapes {a.shape} and {b.shape}")
+        raise ValueError(
+            f"need two equal, non-empty vectors of outcomes, got shapes {a.shape} and {b.shape}"
+        )
     n = a.size
     diff = a.astype(np.float64) - b.astype(np.float64)
     half = z * float(diff.std(ddof=1)) / math.sqrt(n) if n > 1 else float("nan")
     d = float(diff.mean())
     only_a, only_b = int((a & ~b).sum()), int((b & ~a).sum())
     return {
-        "n": n, "W_a": float(a.mean()), "W_b": float(b.mean()), "dW": d, "dW_low": d - half, "dW_high": d + half,
-        "only_a": only_a, "only_b": only_b, "p_mcnemar": mcnemar_exact(only_a, only_b),
+        "n": n,
+        "W_a": float(a.mean()),
+        "W_b": float(b.mean()),
+        "dW": d,
+        "dW_low": d - half,
+        "dW_high": d + half,
+        "only_a": only_a,
+        "only_b": only_b,
+        "p_mcnemar": mcnemar_exact(only_a, only_b),
     }

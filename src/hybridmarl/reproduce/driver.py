@@ -60,10 +60,16 @@ def check_output_folder(out: Path, grid: Grid, *, force: bool) -> None:
             doc = {}
         for k, v in mine.items():
             if doc.get(k) != v and not force:
-                raise OutputFolderError(f"{out} holds a reproduction of {k} {doc.get(k)!r}, not {v!r}; choose another --out or pass --force")
+                raise OutputFolderError(
+                    f"{out} holds a reproduction of {k} {doc.get(k)!r}, not {v!r}; choose another --out or pass --force"
+                )
     elif out.exists() and any(out.iterdir()) and not force:
-        raise OutputFolderError(f"{out} is not empty and holds no {MANIFEST}; choose another --out or pass --force")
-    write_json_atomic(path, {**doc, **mine, "created": doc.get("created", _now()), "updated": _now()})
+        raise OutputFolderError(
+            f"{out} is not empty and holds no {MANIFEST}; choose another --out or pass --force"
+        )
+    write_json_atomic(
+        path, {**doc, **mine, "created": doc.get("created", _now()), "updated": _now()}
+    )
 
 
 def load_result(task_dir: Path, task: GridTask) -> dict[str, Any] | None:
@@ -122,11 +128,21 @@ def prepare(state: GridState, *, retry_failed: bool = True) -> list[GridTask]:
     are among them, and their failure record is cleared, unless ``retry_failed`` is False (a
     status report, which runs nothing)."""
     grid = state.grid
-    write_json_atomic(state.out / "grid.json", {
-        "budget": grid.budget, "setting": grid.setting, "selection": grid.selection,
-        "tasks": {k: {**t.to_dict(), "dir": f"tasks/{t.dirname}"} for k, t in grid.tasks.items()},
-        "cells": [{"table": c.table, "column": c.column, "row": c.row, "keys": list(c.keys)} for c in grid.cells],
-    })
+    write_json_atomic(
+        state.out / "grid.json",
+        {
+            "budget": grid.budget,
+            "setting": grid.setting,
+            "selection": grid.selection,
+            "tasks": {
+                k: {**t.to_dict(), "dir": f"tasks/{t.dirname}"} for k, t in grid.tasks.items()
+            },
+            "cells": [
+                {"table": c.table, "column": c.column, "row": c.row, "keys": list(c.keys)}
+                for c in grid.cells
+            ],
+        },
+    )
     state.scan()
     todo = []
     for key, t in grid.tasks.items():
@@ -193,7 +209,9 @@ def _units(config: dict[str, Any]) -> int:
     return sum(army_sizes(scenario)) if scenario else 1
 
 
-def finished_durations(out: Path, *, skip: frozenset[str] = frozenset()) -> list[tuple[dict[str, Any], str, float]]:
+def finished_durations(
+    out: Path, *, skip: frozenset[str] = frozenset()
+) -> list[tuple[dict[str, Any], str, float]]:
     """(config, kind, wall seconds) of every finished task in the output folder, whichever
     command ran it, except the task folders named in ``skip``: what the time left is estimated
     from. Unreadable records are passed over."""
@@ -203,7 +221,13 @@ def finished_durations(out: Path, *, skip: frozenset[str] = frozenset()) -> list
             continue
         with contextlib.suppress(OSError, ValueError, TypeError, KeyError, AttributeError):
             r = json.loads(result.read_text())
-            found.append((dict(r["config"]), str(json.loads((result.parent / TASK_FILE).read_text())["kind"]), float(r["wall_s"])))
+            found.append(
+                (
+                    dict(r["config"]),
+                    str(json.loads((result.parent / TASK_FILE).read_text())["kind"]),
+                    float(r["wall_s"]),
+                )
+            )
     return found
 
 
@@ -217,7 +241,9 @@ class Progress:
     def __init__(self, state: GridState, workers: int, *, live: bool | None = None) -> None:
         self.state, self.workers = state, max(1, workers)
         # Finished tasks outside this command's selection; the selection's own come from state.results.
-        self._earlier = finished_durations(state.out, skip=frozenset(t.dirname for t in state.grid.tasks.values()))
+        self._earlier = finished_durations(
+            state.out, skip=frozenset(t.dirname for t in state.grid.tasks.values())
+        )
         self.t0 = time.time()
         self.live = sys.stderr.isatty() if live is None else live
         self._rich: Any = None
@@ -226,7 +252,9 @@ class Progress:
             from rich.console import Console
             from rich.live import Live
 
-            self._rich = Live(self._render(), console=Console(stderr=True), refresh_per_second=2, transient=False)
+            self._rich = Live(
+                self._render(), console=Console(stderr=True), refresh_per_second=2, transient=False
+            )
             self._rich.start()
 
     def counts(self) -> dict[str, int]:
@@ -242,7 +270,14 @@ class Progress:
         (:data:`SIZE_EXPONENT`)."""
         durations: dict[tuple[str, ...], list[tuple[float, int]]] = {}
         finished = list(self._earlier)
-        finished += [(self.state.grid.tasks[k].config, self.state.grid.tasks[k].kind, float(r.get("wall_s", 0.0))) for k, r in self.state.results.items()]
+        finished += [
+            (
+                self.state.grid.tasks[k].config,
+                self.state.grid.tasks[k].kind,
+                float(r.get("wall_s", 0.0)),
+            )
+            for k, r in self.state.results.items()
+        ]
         for cfg, kind, wall in finished:
             for group in _duration_keys(cfg, kind):
                 durations.setdefault(group, []).append((wall, _units(cfg)))
@@ -252,7 +287,9 @@ class Progress:
             status = self.state.status(key)
             if status in ("done", "failed"):
                 continue
-            known = next((durations[g] for g in _duration_keys(t.config, t.kind) if g in durations), None)
+            known = next(
+                (durations[g] for g in _duration_keys(t.config, t.kind) if g in durations), None
+            )
             if not known:
                 row = str(t.config.get("row", t.kind))
                 if row not in unknown:
@@ -260,7 +297,9 @@ class Progress:
                 continue
             units, exponent = _units(t.config), SIZE_EXPONENT.get(t.kind, 1.0)
             mean = sum(wall * (units / n) ** exponent for wall, n in known) / len(known)
-            left += max(mean - (now - self.state.running[key]), 0.0) if status == "running" else mean
+            left += (
+                max(mean - (now - self.state.running[key]), 0.0) if status == "running" else mean
+            )
         return left / self.workers, tuple(unknown)
 
     def eta_s(self) -> float | None:
@@ -274,7 +313,11 @@ class Progress:
         left = f"~{_duration(seconds)} left"
         if unknown:
             # Rows with no finished task yet are named, not guessed from other rows' durations.
-            left = f"{left}, plus {', '.join(unknown)} (none finished yet)" if seconds > 0 else "~? left"
+            left = (
+                f"{left}, plus {', '.join(unknown)} (none finished yet)"
+                if seconds > 0
+                else "~? left"
+            )
         return (
             f"reproduce: {c['done']}/{sum(c.values())} done, {c['running']} running, {c['queued']} queued, "
             f"{c['failed']} failed; {_duration(time.time() - self.t0)} elapsed, {left}"
@@ -321,14 +364,18 @@ def _duration(s: float) -> str:
     return f"{s // 3600}h{(s % 3600) // 60:02d}m"
 
 
-def run_grid(state: GridState, executor: LocalExecutor | RayExecutor, *, live: bool | None = None) -> None:
+def run_grid(
+    state: GridState, executor: LocalExecutor | RayExecutor, *, live: bool | None = None
+) -> None:
     """Run every task that is not done (failed ones again), recording each result or failure
     as it comes; the grid goes on when a task fails."""
     todo = prepare(state)
     workers = getattr(executor, "workers", None) or 1
     progress = Progress(state, workers, live=live)
     done_before = len(state.results)
-    progress.event(f"{len(state.grid.tasks)} tasks: {done_before} done earlier, {len(todo)} to run ({executor.name} executor)")
+    progress.event(
+        f"{len(state.grid.tasks)} tasks: {done_before} done earlier, {len(todo)} to run ({executor.name} executor)"
+    )
 
     def started(key: str) -> None:
         state.running[key] = time.time()
@@ -344,7 +391,13 @@ def run_grid(state: GridState, executor: LocalExecutor | RayExecutor, *, live: b
             progress.event(f"done     {t.label} ({_duration(time.time() - since)})")
             return
         log = d / LOG_FILE
-        failure = {"exit_code": exit_code, "error": _why(exit_code, error), "last_log_line": _last_line(log), "log": str(log), "at": _now()}
+        failure = {
+            "exit_code": exit_code,
+            "error": _why(exit_code, error),
+            "last_log_line": _last_line(log),
+            "log": str(log),
+            "at": _now(),
+        }
         write_json_atomic(d / FAILED_FILE, failure)
         state.failures[key] = failure
         progress.event(f"FAILED   {t.label}: {failure['error']}; log {log}")
@@ -356,4 +409,14 @@ def run_grid(state: GridState, executor: LocalExecutor | RayExecutor, *, live: b
         progress.close()
 
 
-__all__ = ["FAILED_FILE", "MANIFEST", "GridState", "OutputFolderError", "Progress", "check_output_folder", "load_result", "prepare", "run_grid"]
+__all__ = [
+    "FAILED_FILE",
+    "MANIFEST",
+    "GridState",
+    "OutputFolderError",
+    "Progress",
+    "check_output_folder",
+    "load_result",
+    "prepare",
+    "run_grid",
+]

@@ -54,7 +54,9 @@ def worker_env(use_gpu: bool) -> dict[str, str]:
     return env
 
 
-def start_worker_process(task_dir: str | Path, changes: dict[str, str]) -> tuple[subprocess.Popen[bytes], Any]:
+def start_worker_process(
+    task_dir: str | Path, changes: dict[str, str]
+) -> tuple[subprocess.Popen[bytes], Any]:
     """Start the process of one task with this process's environment plus ``changes``
     (:func:`worker_env`) and the compilation cache; its output is appended to the task's log.
     Returns the process and the open log (close it when the process has ended)."""
@@ -63,9 +65,16 @@ def start_worker_process(task_dir: str | Path, changes: dict[str, str]) -> tuple
     # Most of a small task's programs compile in well under JAX's default threshold of 1 s.
     env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
     log = open(Path(task_dir) / LOG_FILE, "a")  # noqa: SIM115 (the caller closes it)
-    log.write(f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {sys.executable} -m hybridmarl.reproduce.worker {task_dir}\n")
+    log.write(
+        f"\n=== {time.strftime('%Y-%m-%d %H:%M:%S')} {sys.executable} -m hybridmarl.reproduce.worker {task_dir}\n"
+    )
     log.flush()
-    proc = subprocess.Popen([sys.executable, "-m", "hybridmarl.reproduce.worker", str(task_dir)], stdout=log, stderr=subprocess.STDOUT, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hybridmarl.reproduce.worker", str(task_dir)],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        env=env,
+    )
     return proc, log
 
 
@@ -88,7 +97,14 @@ class LocalExecutor:
     def __init__(self, workers: int = 1) -> None:
         self.workers = max(1, workers)
 
-    def run(self, tasks: list[GridTask], task_dir: Callable[[GridTask], Path], started: Started, finished: Finished, tick: Callable[[], None]) -> None:
+    def run(
+        self,
+        tasks: list[GridTask],
+        task_dir: Callable[[GridTask], Path],
+        started: Started,
+        finished: Finished,
+        tick: Callable[[], None],
+    ) -> None:
         queue = list(tasks)
         running: dict[str, tuple[subprocess.Popen[bytes], Any]] = {}
         try:
@@ -127,12 +143,16 @@ def _check_reachable(address: str) -> None:
         target = address
     host, _, port = target.rpartition(":")
     if not host or not port.isdigit():
-        raise ClusterError(f"--address {address!r} is not HOST:PORT (or 'auto', or ray://HOST:PORT)")
+        raise ClusterError(
+            f"--address {address!r} is not HOST:PORT (or 'auto', or ray://HOST:PORT)"
+        )
     try:
         with socket.create_connection((host, int(port)), timeout=5):
             pass
     except OSError as e:
-        raise ClusterError(f"cannot reach the Ray cluster at --address {address}: {e.strerror or e}") from None
+        raise ClusterError(
+            f"cannot reach the Ray cluster at --address {address}: {e.strerror or e}"
+        ) from None
 
 
 class RayExecutor:
@@ -144,12 +164,19 @@ class RayExecutor:
 
     name = "ray"
 
-    def __init__(self, address: str | None = None, workers: int | None = None, gpus_per_train_task: float = 0.0) -> None:
+    def __init__(
+        self,
+        address: str | None = None,
+        workers: int | None = None,
+        gpus_per_train_task: float = 0.0,
+    ) -> None:
         import importlib.util
 
         # Checked here, before anything is written: a bad --address is one line and no output.
         if importlib.util.find_spec("ray") is None:
-            raise ClusterError("ray is not installed; install the 'scale' extra: pip install 'hybridmarl[scale]' (or use --executor local)")
+            raise ClusterError(
+                "ray is not installed; install the 'scale' extra: pip install 'hybridmarl[scale]' (or use --executor local)"
+            )
         if address:
             _check_reachable(address)
         self.address, self.workers, self.gpus = address, workers, gpus_per_train_task
@@ -157,7 +184,11 @@ class RayExecutor:
     def _init(self) -> Any:
         import ray  # pyright: ignore[reportMissingImports]  # the optional 'scale' extra
 
-        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "logging_level": "ERROR"}
+        kwargs: dict[str, Any] = {
+            "include_dashboard": False,
+            "log_to_driver": False,
+            "logging_level": "ERROR",
+        }
         if not self.address and self.workers:
             kwargs["num_cpus"] = self.workers
         try:
@@ -167,7 +198,14 @@ class RayExecutor:
             raise ClusterError(f"cannot start Ray on {where}: {' '.join(str(e).split())}") from None
         return ray
 
-    def run(self, tasks: list[GridTask], task_dir: Callable[[GridTask], Path], started: Started, finished: Finished, tick: Callable[[], None]) -> None:
+    def run(
+        self,
+        tasks: list[GridTask],
+        task_dir: Callable[[GridTask], Path],
+        started: Started,
+        finished: Finished,
+        tick: Callable[[], None],
+    ) -> None:
         ray = self._init()
         try:
             limit = self.workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
@@ -178,7 +216,9 @@ class RayExecutor:
                 while queue and len(in_flight) < limit:
                     t = queue.pop(0)
                     use_gpu = t.kind == "train" and self.gpus > 0
-                    ref = remote.options(num_cpus=1, num_gpus=self.gpus if use_gpu else 0).remote(str(task_dir(t)), worker_env(use_gpu))
+                    ref = remote.options(num_cpus=1, num_gpus=self.gpus if use_gpu else 0).remote(
+                        str(task_dir(t)), worker_env(use_gpu)
+                    )
                     in_flight[ref] = t.key
                     started(t.key)
                 done, _ = ray.wait(list(in_flight), num_returns=1, timeout=0.5)
@@ -193,7 +233,9 @@ class RayExecutor:
             ray.shutdown()
 
 
-def make_executor(kind: str, *, address: str | None, workers: int | None, gpus_per_train_task: float) -> LocalExecutor | RayExecutor:
+def make_executor(
+    kind: str, *, address: str | None, workers: int | None, gpus_per_train_task: float
+) -> LocalExecutor | RayExecutor:
     """``auto``: Ray when it is installed (or when ``address`` is given), else local."""
     if kind == "auto":
         import importlib.util
@@ -208,4 +250,13 @@ def make_executor(kind: str, *, address: str | None, workers: int | None, gpus_p
     raise UserError(f"unknown --executor {kind!r} (known: auto, ray, local)")
 
 
-__all__ = ["LOG_FILE", "ClusterError", "compile_cache_dir", "LocalExecutor", "RayExecutor", "make_executor", "run_worker_process", "worker_env"]
+__all__ = [
+    "LOG_FILE",
+    "ClusterError",
+    "compile_cache_dir",
+    "LocalExecutor",
+    "RayExecutor",
+    "make_executor",
+    "run_worker_process",
+    "worker_env",
+]

@@ -40,7 +40,9 @@ class GridTask:
     @property
     def key(self) -> str:
         """A stable hash of the kind and the whole config (12 hex digits)."""
-        doc = json.dumps({"kind": self.kind, "config": self.config}, sort_keys=True, separators=(",", ":"))
+        doc = json.dumps(
+            {"kind": self.kind, "config": self.config}, sort_keys=True, separators=(",", ":")
+        )
         return hashlib.sha256(doc.encode()).hexdigest()[:12]
 
     @property
@@ -121,24 +123,54 @@ def _choose(what: str, given: tuple[str, ...] | None, known: tuple[str, ...]) ->
     return tuple(k for k in known if k in given)
 
 
-def _train(row: str, learner: P.Learner, *, env: str, scenario: str | None, demonstrator: str, seed: int, setting: str, n: int) -> GridTask:
+def _train(
+    row: str,
+    learner: P.Learner,
+    *,
+    env: str,
+    scenario: str | None,
+    demonstrator: str,
+    seed: int,
+    setting: str,
+    n: int,
+) -> GridTask:
     overrides = dict(learner.overrides)
     if scenario not in (None, "m5v5"):
         overrides.update(learner.large_overrides)
     cfg: dict[str, Any] = {
-        "row": row, "env": env, "algo": learner.algo, "preset": learner.preset, "overrides": overrides,
-        "demonstrator": demonstrator, "seed": seed, "setting": setting, "n": n, "eval_seed": P.EVAL_SEED,
+        "row": row,
+        "env": env,
+        "algo": learner.algo,
+        "preset": learner.preset,
+        "overrides": overrides,
+        "demonstrator": demonstrator,
+        "seed": seed,
+        "setting": setting,
+        "n": n,
+        "eval_seed": P.EVAL_SEED,
     }
     if env == "combat":
         cfg.update(scenario=scenario, enemy=P.CROSS_ENEMY[demonstrator])
     return GridTask("train", cfg)
 
 
-def _combat_eval(row: str, kind: str, player: str, *, scenario: str, demonstrator: str, setting: str, n: int) -> GridTask:
-    return GridTask(kind, {
-        "row": row, "env": "combat", "scenario": scenario, "demonstrator": demonstrator, "player": player,
-        "enemy": P.CROSS_ENEMY[demonstrator], "setting": setting, "n": n, "eval_seed": P.EVAL_SEED,
-    })
+def _combat_eval(
+    row: str, kind: str, player: str, *, scenario: str, demonstrator: str, setting: str, n: int
+) -> GridTask:
+    return GridTask(
+        kind,
+        {
+            "row": row,
+            "env": "combat",
+            "scenario": scenario,
+            "demonstrator": demonstrator,
+            "player": player,
+            "enemy": P.CROSS_ENEMY[demonstrator],
+            "setting": setting,
+            "n": n,
+            "eval_seed": P.EVAL_SEED,
+        },
+    )
 
 
 _TREE_SEARCH = {"UCT": "uct", "A-B": "abcd"}
@@ -151,12 +183,22 @@ def _search_player(row: str, demonstrator: str, options: str, model: str) -> str
         # ("enemy-playouts"), also in the tree ("enemy-script", SparCraft's opponent model), or
         # the demonstrator, as on our side ("demonstrator").
         enemy = P.CROSS_ENEMY[demonstrator]
-        knows = {"enemy-playouts": f"playout1={enemy},", "enemy-script": f"playout1={enemy},opponent_model={enemy},"}
+        knows = {
+            "enemy-playouts": f"playout1={enemy},",
+            "enemy-script": f"playout1={enemy},opponent_model={enemy},",
+        }
         return f"{_TREE_SEARCH[row]}:script={demonstrator},{knows.get(model, '')}{options}"
     return f"pgs:portfolio={P.PROFILE_PORTFOLIO},{options}"  # Profile: PGS choosing between c and w
 
 
-def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selection = Selection(), *, drop_empty: bool = False) -> Grid:
+def expand(
+    tables: tuple[str, ...],
+    budget_name: str,
+    setting: str,
+    sel: Selection = Selection(),
+    *,
+    drop_empty: bool = False,
+) -> Grid:
     """The grid of ``tables`` (``table1``, ``table2``, ``fig3``) at ``budget_name`` under
     ``setting``, restricted to ``sel``. Raises :class:`GridError` for an unknown name, or when
     the selection leaves a requested table empty (with ``drop_empty``: only when it leaves every
@@ -167,9 +209,13 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
         if t not in P.TABLES:
             raise GridError(f"unknown table {t!r} (known: {', '.join(P.TABLES)}, all)")
     if sel.search_budget not in P.SEARCH_BUDGETS:
-        raise GridError(f"unknown --search-budget {sel.search_budget!r} (known: {', '.join(P.SEARCH_BUDGETS)})")
+        raise GridError(
+            f"unknown --search-budget {sel.search_budget!r} (known: {', '.join(P.SEARCH_BUDGETS)})"
+        )
     if sel.search_model not in P.SEARCH_MODELS:
-        raise GridError(f"unknown --search-model {sel.search_model!r} (known: {', '.join(P.SEARCH_MODELS)})")
+        raise GridError(
+            f"unknown --search-model {sel.search_model!r} (known: {', '.join(P.SEARCH_MODELS)})"
+        )
     budget = P.BUDGETS[budget_name]
     known_rows = tuple(dict.fromkeys(P.TABLE1_ROWS + P.TABLE2_ROWS + P.FIG3_CURVES))
     rows = _choose("row", sel.rows, known_rows)
@@ -179,11 +225,19 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
     if not seeds or any(s < 0 for s in seeds):
         raise GridError(f"--seeds must be non-negative integers, not {list(seeds)}")
     search = budget.search if sel.search_budget == "fixed" else budget.wallclock_search
-    grid = Grid(budget_name, setting, selection={
-        "tables": list(tables), "rows": list(rows), "scenarios": list(scenarios), "demonstrators": list(letters),
-        "seeds": list(seeds), "search_budget": sel.search_budget,
-        "search_model": sel.search_model,
-    })
+    grid = Grid(
+        budget_name,
+        setting,
+        selection={
+            "tables": list(tables),
+            "rows": list(rows),
+            "scenarios": list(scenarios),
+            "demonstrators": list(letters),
+            "seeds": list(seeds),
+            "search_budget": sel.search_budget,
+            "search_model": sel.search_model,
+        },
+    )
     n = budget.eval_battles
     if "table1" in tables:
         for letter in letters:
@@ -194,13 +248,47 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
                     if row not in rows:
                         continue
                     if row == "D":
-                        tasks = [_combat_eval(row, "script", demo, scenario=scenario, demonstrator=demo, setting=setting, n=n)]
+                        tasks = [
+                            _combat_eval(
+                                row,
+                                "script",
+                                demo,
+                                scenario=scenario,
+                                demonstrator=demo,
+                                setting=setting,
+                                n=n,
+                            )
+                        ]
                     elif row in budget.search:
-                        player = _search_player(row, demo, search[row].format(**P.sparcraft_40ms_budget(scenario)), sel.search_model)
-                        tasks = [_combat_eval(row, "search", player, scenario=scenario, demonstrator=demo, setting=setting, n=n)]
+                        player = _search_player(
+                            row,
+                            demo,
+                            search[row].format(**P.sparcraft_40ms_budget(scenario)),
+                            sel.search_model,
+                        )
+                        tasks = [
+                            _combat_eval(
+                                row,
+                                "search",
+                                player,
+                                scenario=scenario,
+                                demonstrator=demo,
+                                setting=setting,
+                                n=n,
+                            )
+                        ]
                     else:
                         tasks = [
-                            _train(row, budget.learners[row], env="combat", scenario=scenario, demonstrator=demo, seed=s, setting=setting, n=n)
+                            _train(
+                                row,
+                                budget.learners[row],
+                                env="combat",
+                                scenario=scenario,
+                                demonstrator=demo,
+                                seed=s,
+                                setting=setting,
+                                n=n,
+                            )
                             for s in seeds
                         ]
                     grid.add("table1", column, row, tasks)
@@ -210,13 +298,32 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
             if row not in rows:
                 continue
             if row == "D":
-                tasks = [GridTask("script", {
-                    "row": row, "env": "traffic_junction", "demonstrator": P.TJ_DEMONSTRATOR, "player": P.TJ_DEMONSTRATOR,
-                    "setting": setting, "n": n_tj, "eval_seed": P.EVAL_SEED,
-                })]
+                tasks = [
+                    GridTask(
+                        "script",
+                        {
+                            "row": row,
+                            "env": "traffic_junction",
+                            "demonstrator": P.TJ_DEMONSTRATOR,
+                            "player": P.TJ_DEMONSTRATOR,
+                            "setting": setting,
+                            "n": n_tj,
+                            "eval_seed": P.EVAL_SEED,
+                        },
+                    )
+                ]
             else:
                 tasks = [
-                    _train(row, budget.learners[row], env="traffic_junction", scenario=None, demonstrator=P.TJ_DEMONSTRATOR, seed=s, setting=setting, n=n_tj)
+                    _train(
+                        row,
+                        budget.learners[row],
+                        env="traffic_junction",
+                        scenario=None,
+                        demonstrator=P.TJ_DEMONSTRATOR,
+                        seed=s,
+                        setting=setting,
+                        n=n_tj,
+                    )
                     for s in seeds
                 ]
             grid.add("table2", "tj", row, tasks)
@@ -229,13 +336,24 @@ def expand(tables: tuple[str, ...], budget_name: str, setting: str, sel: Selecti
                 if row not in rows:
                     continue
                 tasks = [
-                    _train(row, budget.learners[row], env="combat", scenario=scenario, demonstrator=demo, seed=s, setting=setting, n=n)
+                    _train(
+                        row,
+                        budget.learners[row],
+                        env="combat",
+                        scenario=scenario,
+                        demonstrator=demo,
+                        seed=s,
+                        setting=setting,
+                        n=n,
+                    )
                     for s in seeds
                 ]
                 grid.add("fig3", f"{scenario}/c", row, tasks)
     for t in tables:
         if not grid.cells_of(t) and not (drop_empty and grid.cells):
-            raise GridError(f"the selection leaves {t} empty (rows {', '.join(rows)}; scenarios {', '.join(scenarios)}; demonstrators {', '.join(letters)})")
+            raise GridError(
+                f"the selection leaves {t} empty (rows {', '.join(rows)}; scenarios {', '.join(scenarios)}; demonstrators {', '.join(letters)})"
+            )
     return grid
 
 

@@ -49,7 +49,11 @@ def cell_summary(state: GridState, cell: Cell) -> dict[str, Any]:
     tasks = [state.grid.tasks[k] for k in cell.keys]
     failed = [state.failures[k] for k in cell.keys if k in state.failures]
     if failed:
-        return {"status": "failed", "logs": [f["log"] for f in failed], "errors": [f["error"] for f in failed]}
+        return {
+            "status": "failed",
+            "logs": [f["log"] for f in failed],
+            "errors": [f["error"] for f in failed],
+        }
     results = [state.results.get(k) for k in cell.keys]
     if any(r is None for r in results):
         done = sum(r is not None for r in results)
@@ -57,25 +61,52 @@ def cell_summary(state: GridState, cell: Cell) -> dict[str, Any]:
     rs: list[dict[str, Any]] = [r for r in results if r is not None]
     seeds = [t.config.get("seed") for t in tasks]
     per = [r["per_episode"] for r in rs]
-    out: dict[str, Any] = {"status": "done", "n": len(per[0][next(iter(per[0]))]), "seeds": seeds if tasks[0].kind == "train" else None}
+    out: dict[str, Any] = {
+        "status": "done",
+        "n": len(per[0][next(iter(per[0]))]),
+        "seeds": seeds if tasks[0].kind == "train" else None,
+    }
     if "won" in per[0]:
         won = np.concatenate([np.asarray(p["won"]) for p in per])
         hp = np.concatenate([np.asarray(p["terminal_hp_reward"]) for p in per])
         r_mean, r_lo, r_hi = t_interval(hp)
         out.update(
-            W=float(won.mean()), W_ci95=list(wilson_interval(int(won.sum()), won.size)), R=r_mean, R_ci95=[r_lo, r_hi],
-            per_seed=[{"seed": s, "W": r["summary"]["W"], "R": r["summary"]["R"]} for s, r in zip(seeds, rs, strict=True)],
-            per_state={"won": _mean_over_seeds([p["won"] for p in per]).tolist(), "terminal_hp_reward": _mean_over_seeds([p["terminal_hp_reward"] for p in per]).tolist()},
+            W=float(won.mean()),
+            W_ci95=list(wilson_interval(int(won.sum()), won.size)),
+            R=r_mean,
+            R_ci95=[r_lo, r_hi],
+            per_seed=[
+                {"seed": s, "W": r["summary"]["W"], "R": r["summary"]["R"]}
+                for s, r in zip(seeds, rs, strict=True)
+            ],
+            per_state={
+                "won": _mean_over_seeds([p["won"] for p in per]).tolist(),
+                "terminal_hp_reward": _mean_over_seeds(
+                    [p["terminal_hp_reward"] for p in per]
+                ).tolist(),
+            },
         )
     else:
         failed_ep = np.concatenate([np.asarray(p["failed"]) for p in per])
         arrivals = np.concatenate([np.asarray(p["arrivals"]) for p in per])
         a_mean, a_lo, a_hi = t_interval(arrivals)
         out.update(
-            failure_rate=float(failed_ep.mean()), failure_rate_ci95=list(wilson_interval(int(failed_ep.sum()), failed_ep.size)),
-            arrivals=a_mean, arrivals_ci95=[a_lo, a_hi],
-            per_seed=[{"seed": s, "failure_rate": r["summary"]["failure_rate"], "arrivals": r["summary"]["mean_arrivals"]} for s, r in zip(seeds, rs, strict=True)],
-            per_state={"failed": _mean_over_seeds([p["failed"] for p in per]).tolist(), "arrivals": _mean_over_seeds([p["arrivals"] for p in per]).tolist()},
+            failure_rate=float(failed_ep.mean()),
+            failure_rate_ci95=list(wilson_interval(int(failed_ep.sum()), failed_ep.size)),
+            arrivals=a_mean,
+            arrivals_ci95=[a_lo, a_hi],
+            per_seed=[
+                {
+                    "seed": s,
+                    "failure_rate": r["summary"]["failure_rate"],
+                    "arrivals": r["summary"]["mean_arrivals"],
+                }
+                for s, r in zip(seeds, rs, strict=True)
+            ],
+            per_state={
+                "failed": _mean_over_seeds([p["failed"] for p in per]).tolist(),
+                "arrivals": _mean_over_seeds([p["arrivals"] for p in per]).tolist(),
+            },
         )
     if tasks[0].kind == "train" and len(rs) > 1:
         # The pooled interval above counts battles; this one counts seeds, so it also carries
@@ -85,7 +116,16 @@ def cell_summary(state: GridState, cell: Cell) -> dict[str, Any]:
             _, lo, hi = t_interval(np.asarray([p[m] for p in out["per_seed"]], np.float64))
             # A rate's interval stays within [0, 1], where the t interval of 3 seeds can overshoot.
             out["over_seeds_ci95"][m] = [max(lo, 0.0), min(hi, 1.0)] if m in _RATES else [lo, hi]
-    out["search_cost"] = {k: rs[0]["summary"].get(k) for k in ("ms_per_decision", "traversals_per_decision", "nodes_per_decision", "playouts_per_decision") if rs[0]["summary"].get(k) is not None} or None
+    out["search_cost"] = {
+        k: rs[0]["summary"].get(k)
+        for k in (
+            "ms_per_decision",
+            "traversals_per_decision",
+            "nodes_per_decision",
+            "playouts_per_decision",
+        )
+        if rs[0]["summary"].get(k) is not None
+    } or None
     out["wall_s"] = float(sum(r.get("wall_s", 0.0) for r in rs))
     out["cpu_s"] = float(sum(r.get("cpu_s", 0.0) for r in rs))
     out["cpu_s_per_task"] = [float(r.get("cpu_s", 0.0)) for r in rs]
@@ -142,7 +182,15 @@ class Rendered:
 
     def html(self) -> str:
         head = "".join(f"<th>{html.escape(h)}</th>" for h in self.header)
-        body = "".join("<tr>" + "".join(f"<td>{'<b>' if b else ''}{html.escape(t)}{'</b>' if b else ''}</td>" for t, b in row) + "</tr>" for row in self.rows)
+        body = "".join(
+            "<tr>"
+            + "".join(
+                f"<td>{'<b>' if b else ''}{html.escape(t)}{'</b>' if b else ''}</td>"
+                for t, b in row
+            )
+            + "</tr>"
+            for row in self.rows
+        )
         return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -169,16 +217,22 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
     header = ["row"] + [f"{s} {m}" for s in scenarios for m in ("W", "R")]
     rendered_rows: list[list[tuple[str, bool]]] = []
     for letter in letters:
-        rows = [r for r in P.TABLE1_ROWS if any((f"{s}/{letter}", r) in summaries for s in scenarios)]
+        rows = [
+            r for r in P.TABLE1_ROWS if any((f"{s}/{letter}", r) in summaries for s in scenarios)
+        ]
         best: dict[tuple[str, str], set[str]] = {}
         paper_best: dict[tuple[str, str], set[str]] = {}
         for s in scenarios:
             col = f"{s}/{letter}"
             for m in ("W", "R"):
-                best[(col, m)] = _best({r: summaries[(col, r)].get(m) for r in rows if (col, r) in summaries})
+                best[(col, m)] = _best(
+                    {r: summaries[(col, r)].get(m) for r in rows if (col, r) in summaries}
+                )
                 idx = 0 if m == "W" else 1
                 # The paper's best of its whole column, whether or not that row was run here.
-                paper_best[(col, m)] = _best({r: P.PAPER_TABLE1[(r, letter)][s][idx] for r in P.TABLE1_ROWS})
+                paper_best[(col, m)] = _best(
+                    {r: P.PAPER_TABLE1[(r, letter)][s][idx] for r in P.TABLE1_ROWS}
+                )
         for r in rows:
             name = f"{r}_{letter}"
             line: list[tuple[str, bool]] = [(name, False)]
@@ -207,7 +261,10 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
                 doc["paired_tests"][col] = test
     rendered = Rendered(header, rendered_rows)
     cost = cost_table(
-        {(col.split("/")[0], f"{row}_{col.split('/')[1]}"): sm for (col, row), sm in summaries.items()},
+        {
+            (col.split("/")[0], f"{row}_{col.split('/')[1]}"): sm
+            for (col, row), sm in summaries.items()
+        },
         scenarios,
         [(name, name) for name in (line[0][0] for line in rendered_rows)],
     )
@@ -221,7 +278,10 @@ def table1(state: GridState) -> tuple[dict[str, Any], str, str]:
         "",
         rendered.markdown(),
         "",
-        *_seed_lines([(f"{name} {col}", e) for name, cols in doc["rows"].items() for col, e in cols.items()], ("W", "R")),
+        *_seed_lines(
+            [(f"{name} {col}", e) for name, cols in doc["rows"].items() for col, e in cols.items()],
+            ("W", "R"),
+        ),
         *_test_lines(doc["paired_tests"], "W", "R"),
         *_cost_lines(cost),
         *_failure_lines(summaries),
@@ -236,12 +296,24 @@ def _search_sentence(selection: dict[str, Any]) -> str:
     return f"UCT and A-B search with {how}, {P.SEARCH_MODELS[model]} (--search-budget {budget}, --search-model {model})."
 
 
-def _paired(summaries: dict[tuple[str, str], dict[str, Any]], col: str, rows: list[str], primary: str, secondary: str, *, lower: bool) -> dict[str, Any] | None:
+def _paired(
+    summaries: dict[tuple[str, str], dict[str, Any]],
+    col: str,
+    rows: list[str],
+    primary: str,
+    secondary: str,
+    *,
+    lower: bool,
+) -> dict[str, Any] | None:
     """Ours against the best other done row of a column (by the primary metric's mean)."""
     ours = summaries.get((col, "Ours"))
     if ours is None or ours["status"] != "done":
         return None
-    others = {r: summaries[(col, r)] for r in rows if r != "Ours" and (col, r) in summaries and summaries[(col, r)]["status"] == "done"}
+    others = {
+        r: summaries[(col, r)]
+        for r in rows
+        if r != "Ours" and (col, r) in summaries and summaries[(col, r)]["status"] == "done"
+    }
     if not others:
         return None
     score = {r: float(np.mean(s["per_state"][primary])) for r, s in others.items()}
@@ -265,12 +337,17 @@ def _seed_lines(entries: list[tuple[str, dict[str, Any]]], metrics: tuple[str, s
     for name, e in entries:
         if e.get("status") == "done" and e.get("seeds"):
             each = ", ".join(
-                f"seed {p['seed']}: " + ", ".join(f"{m.replace('_', ' ')} {_num(p[m], 3, signed=m in _SIGNED)}" for m in metrics) for p in e["per_seed"]
+                f"seed {p['seed']}: "
+                + ", ".join(
+                    f"{m.replace('_', ' ')} {_num(p[m], 3, signed=m in _SIGNED)}" for m in metrics
+                )
+                for p in e["per_seed"]
             )
             spread = e.get("over_seeds_ci95")
             if spread:
                 each += "; over seeds, 95 % CI " + ", ".join(
-                    f"{m.replace('_', ' ')} {_ci(spread[m], 3, signed=m in _SIGNED)}" for m in metrics
+                    f"{m.replace('_', ' ')} {_ci(spread[m], 3, signed=m in _SIGNED)}"
+                    for m in metrics
                 )
             lines.append(f"- {name}: {each}")
     return (["## Each seed", "", *lines, ""]) if lines else []
@@ -280,8 +357,13 @@ def _test_lines(tests: dict[str, Any], m1: str, m2: str) -> list[str]:
     if not tests:
         return []
     keys = {"W": "won", "R": "terminal_hp_reward", "failure rate": "failed", "arrivals": "arrivals"}
-    lines = ["## Paired tests", "", "Ours against the best other row of each column, on the shared start states "
-             "(per state, each row's outcome averaged over its seeds; two-sided paired t-test).", ""]
+    lines = [
+        "## Paired tests",
+        "",
+        "Ours against the best other row of each column, on the shared start states "
+        "(per state, each row's outcome averaged over its seeds; two-sided paired t-test).",
+        "",
+    ]
     for col, t in tests.items():
         a, b = t[keys[m1]], t[keys[m2]]
         lines.append(
@@ -297,7 +379,11 @@ _COST_NOTE = (
 )
 
 
-def cost_table(summaries: dict[tuple[str, str], dict[str, Any]], columns: list[str], rows: list[tuple[str, str]]) -> Rendered | None:
+def cost_table(
+    summaries: dict[tuple[str, str], dict[str, Any]],
+    columns: list[str],
+    rows: list[tuple[str, str]],
+) -> Rendered | None:
     """CPU minutes per task for ``rows`` (name, row key) x ``columns``: one number for a single
     task, min–max over a learner's seeds; None when no cell is done."""
     table: list[list[tuple[str, bool]]] = []
@@ -305,7 +391,11 @@ def cost_table(summaries: dict[tuple[str, str], dict[str, Any]], columns: list[s
         line: list[tuple[str, bool]] = [(name, False)]
         for col in columns:
             s = summaries.get((col, row))
-            per = [x / 60.0 for x in s.get("cpu_s_per_task", [])] if s and s["status"] == "done" else []
+            per = (
+                [x / 60.0 for x in s.get("cpu_s_per_task", [])]
+                if s and s["status"] == "done"
+                else []
+            )
             if not per:
                 line.append(("", False))
             elif round(min(per), 1) == round(max(per), 1):
@@ -351,21 +441,39 @@ def table2(state: GridState) -> tuple[dict[str, Any], str, str]:
     for r in rows:
         s = summaries[("tj", r)]
         paper = P.PAPER_TABLE2[r]
-        doc["rows"][r] = {"paper": {"failure_rate": paper}, **{k: v for k, v in s.items() if k != "per_state"}}
+        doc["rows"][r] = {
+            "paper": {"failure_rate": paper},
+            **{k: v for k, v in s.items() if k != "per_state"},
+        }
         paper_text = f"{_num(paper)}{'*' if r in paper_best else ''}"
         if s["status"] != "done":
-            out_rows.append([(r, False), (_status_text(s), False), (paper_text, False), (_status_text(s), False)])
+            out_rows.append(
+                [
+                    (r, False),
+                    (_status_text(s), False),
+                    (paper_text, False),
+                    (_status_text(s), False),
+                ]
+            )
             continue
-        out_rows.append([
-            (r, False),
-            (f"{_num(s['failure_rate'], 3, signed=False)} {_ci(s['failure_rate_ci95'], 3, signed=False)}", r in best_fr),
-            (paper_text, False),
-            (f"{_num(s['arrivals'], 2)} {_ci(s['arrivals_ci95'], 2)}", r in best_arr),
-        ])
+        out_rows.append(
+            [
+                (r, False),
+                (
+                    f"{_num(s['failure_rate'], 3, signed=False)} {_ci(s['failure_rate_ci95'], 3, signed=False)}",
+                    r in best_fr,
+                ),
+                (paper_text, False),
+                (f"{_num(s['arrivals'], 2)} {_ci(s['arrivals_ci95'], 2)}", r in best_arr),
+            ]
+        )
     test = _paired(summaries, "tj", rows, "failed", "arrivals", lower=True)
     if test:
         doc["paired_tests"]["tj"] = test
-    rendered = Rendered(["row", "failure rate [95 % CI]", "paper failure rate", "arrivals / episode [95 % CI]"], out_rows)
+    rendered = Rendered(
+        ["row", "failure rate [95 % CI]", "paper failure rate", "arrivals / episode [95 % CI]"],
+        out_rows,
+    )
     cost = cost_table(summaries, ["tj"], [(r, r) for r in rows])
     md = [
         f"# Table 2, Traffic Junction (budget {state.grid.budget}, setting {state.grid.setting})",
@@ -397,7 +505,11 @@ def _episode_curve(run_dir: Path, window: int) -> np.ndarray | None:
     if not path.is_file():
         return None
     with open(path, newline="") as f:
-        values = [float(row["terminal_hp_reward"]) for row in csv.DictReader(f) if row.get("terminal_hp_reward")]
+        values = [
+            float(row["terminal_hp_reward"])
+            for row in csv.DictReader(f)
+            if row.get("terminal_hp_reward")
+        ]
     return forward_mean(np.asarray(values), window) if values else None
 
 
@@ -424,7 +536,10 @@ def fig3(state: GridState, path: Path) -> dict[str, Any] | None:
             if s["status"] != "done":
                 info.setdefault(col, {})[cell.row] = s["status"]
                 continue
-            curves = [_episode_curve(state.task_dir(state.grid.tasks[k]) / "run", P.FIG3_WINDOW) for k in cell.keys]
+            curves = [
+                _episode_curve(state.task_dir(state.grid.tasks[k]) / "run", P.FIG3_WINDOW)
+                for k in cell.keys
+            ]
             curves = [c for c in curves if c is not None and c.size]
             if not curves:
                 # A learner without interaction episodes (BC): its evaluated R as a level.
@@ -440,8 +555,17 @@ def fig3(state: GridState, path: Path) -> dict[str, Any] | None:
                     ax.plot(np.arange(1, c.size + 1), c, color=color, alpha=0.2, linewidth=0.8)
             # A short run (the smoke budget) has only a few points: mark them.
             marker = "o" if length < 20 else None
-            ax.plot(x, stack.mean(0), color=color, marker=marker, label=f"{cell.row} ({len(curves)} seed{'s' if len(curves) > 1 else ''})")
-            info.setdefault(col, {})[cell.row] = {"episodes": int(length + P.FIG3_WINDOW - 1), "final": float(stack.mean(0)[-1])}
+            ax.plot(
+                x,
+                stack.mean(0),
+                color=color,
+                marker=marker,
+                label=f"{cell.row} ({len(curves)} seed{'s' if len(curves) > 1 else ''})",
+            )
+            info.setdefault(col, {})[cell.row] = {
+                "episodes": int(length + P.FIG3_WINDOW - 1),
+                "final": float(stack.mean(0)[-1]),
+            }
             drawn = True
         ax.grid(alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
@@ -492,14 +616,18 @@ def write_outputs(state: GridState, manifest: dict[str, Any]) -> list[Path]:
             info = fig3(state, png)
         except ImportError:  # matplotlib is the optional 'plots' extra
             info = None
-            sections.append("<h2>Fig. 3</h2><p>Not drawn: matplotlib is not installed (pip install 'hybridmarl[plots]').</p>")
+            sections.append(
+                "<h2>Fig. 3</h2><p>Not drawn: matplotlib is not installed (pip install 'hybridmarl[plots]').</p>"
+            )
         else:
             if info is None:
                 sections.append("<h2>Fig. 3</h2><p>No curve is done yet.</p>")
         if info is not None:
             written.append(png)
             b64 = base64.b64encode(png.read_bytes()).decode()
-            sections.append(f'<h2>Fig. 3</h2><img alt="Fig. 3" src="data:image/png;base64,{b64}" style="max-width:100%">')
+            sections.append(
+                f'<h2>Fig. 3</h2><img alt="Fig. 3" src="data:image/png;base64,{b64}" style="max-width:100%">'
+            )
     write_text_atomic(out / "report.html", _report(state, manifest, sections))
     written.append(out / "report.html")
     return written
@@ -508,7 +636,10 @@ def write_outputs(state: GridState, manifest: dict[str, Any]) -> list[Path]:
 def _protocol(state: GridState) -> dict[str, Any]:
     budget = P.BUDGETS[state.grid.budget]
     return {
-        "budget": budget.name, "budget_doc": budget.doc, "setting": state.grid.setting, "eval_seed": P.EVAL_SEED,
+        "budget": budget.name,
+        "budget_doc": budget.doc,
+        "setting": state.grid.setting,
+        "eval_seed": P.EVAL_SEED,
         "selection": state.grid.selection,
         "intervals": "95 %: Wilson for W and failure rates (battles pooled over seeds), Student-t for R and arrivals; for learners also a Student-t interval over the seeds' means (over_seeds_ci95)",
         "paired_test": "Ours vs the best other row of each column: two-sided paired t-test over the shared start states, per-state outcomes averaged over seeds",
@@ -523,7 +654,10 @@ def _section(title: str, table_html: str, md: str) -> str:
 
 def _report(state: GridState, manifest: dict[str, Any], sections: list[str]) -> str:
     budget = P.BUDGETS[state.grid.budget]
-    counts = {s: sum(1 for k in state.grid.tasks if state.status(k) == s) for s in ("done", "failed", "queued")}
+    counts = {
+        s: sum(1 for k in state.grid.tasks if state.status(k) == s)
+        for s in ("done", "failed", "queued")
+    }
     style = (
         "body{font-family:sans-serif;max-width:1400px;margin:2em auto;padding:0 1em}"
         "table{border-collapse:collapse;font-size:13px;margin:1em 0}td,th{border:1px solid #ccc;padding:3px 6px}"
@@ -540,4 +674,13 @@ def _report(state: GridState, manifest: dict[str, Any], sections: list[str]) -> 
     return f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>hybridmarl reproduction</title><style>{style}</style></head><body>{head}{''.join(sections)}{replays}</body></html>\n"
 
 
-__all__ = ["REPLAY_PLACEHOLDER", "cell_summary", "cost_table", "fig3", "paired_test", "table1", "table2", "write_outputs"]
+__all__ = [
+    "REPLAY_PLACEHOLDER",
+    "cell_summary",
+    "cost_table",
+    "fig3",
+    "paired_test",
+    "table1",
+    "table2",
+    "write_outputs",
+]

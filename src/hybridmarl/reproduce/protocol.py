@@ -77,22 +77,102 @@ TABLES = ("table1", "table2", "fig3")
 #: The paper's Table 1: (row, demonstrator letter) -> scenario -> (W, R). "Profile" uses both
 #: scripts; its c and w entries are its rows in the c and w halves (it fights w and c).
 PAPER_TABLE1: dict[tuple[str, str], dict[str, tuple[float, float]]] = {
-    ("D", "c"): {"m5v5": (0.43, -0.02), "m30v30": (0.75, 0.18), "m18v20": (0.32, -0.11), "m24v30": (0.12, -0.26)},
-    ("UCT", "c"): {"m5v5": (0.93, 0.06), "m30v30": (0.88, 0.20), "m18v20": (0.40, -0.14), "m24v30": (0.13, -0.25)},
-    ("A-B", "c"): {"m5v5": (0.96, 0.07), "m30v30": (0.85, 0.21), "m18v20": (0.36, -0.17), "m24v30": (0.12, -0.24)},
-    ("Profile", "c"): {"m5v5": (0.84, 0.14), "m30v30": (0.99, 0.33), "m18v20": (0.61, 0.06), "m24v30": (0.30, -0.11)},
-    ("BC", "c"): {"m5v5": (0.42, -0.04), "m30v30": (0.76, 0.19), "m18v20": (0.28, -0.12), "m24v30": (0.10, -0.29)},
-    ("DQfD", "c"): {"m5v5": (0.85, 0.16), "m30v30": (0.90, 0.41), "m18v20": (0.47, -0.10), "m24v30": (0.23, -0.20)},
-    ("OGTL", "c"): {"m5v5": (0.89, 0.08), "m30v30": (0.93, 0.46), "m18v20": (0.48, -0.07), "m24v30": (0.26, -0.16)},
-    ("Ours", "c"): {"m5v5": (0.98, 0.18), "m30v30": (1.00, 0.51), "m18v20": (0.87, 0.24), "m24v30": (0.76, 0.19)},
-    ("D", "w"): {"m5v5": (0.61, 0.02), "m30v30": (0.13, -0.23), "m18v20": (0.03, -0.36), "m24v30": (0.00, -0.49)},
-    ("UCT", "w"): {"m5v5": (0.93, 0.01), "m30v30": (0.73, 0.09), "m18v20": (0.37, -0.19), "m24v30": (0.00, -0.36)},
-    ("A-B", "w"): {"m5v5": (0.92, 0.02), "m30v30": (0.71, 0.09), "m18v20": (0.34, -0.26), "m24v30": (0.00, -0.38)},
-    ("Profile", "w"): {"m5v5": (0.91, 0.16), "m30v30": (0.96, 0.21), "m18v20": (0.39, -0.08), "m24v30": (0.02, -0.29)},
-    ("BC", "w"): {"m5v5": (0.60, 0.02), "m30v30": (0.13, -0.23), "m18v20": (0.02, -0.37), "m24v30": (0.01, -0.49)},
-    ("DQfD", "w"): {"m5v5": (0.89, 0.08), "m30v30": (0.81, 0.17), "m18v20": (0.30, -0.14), "m24v30": (0.03, -0.37)},
-    ("OGTL", "w"): {"m5v5": (0.97, 0.09), "m30v30": (0.78, 0.15), "m18v20": (0.36, -0.12), "m24v30": (0.06, -0.38)},
-    ("Ours", "w"): {"m5v5": (0.99, 0.19), "m30v30": (0.91, 0.22), "m18v20": (0.71, 0.16), "m24v30": (0.58, 0.03)},
+    ("D", "c"): {
+        "m5v5": (0.43, -0.02),
+        "m30v30": (0.75, 0.18),
+        "m18v20": (0.32, -0.11),
+        "m24v30": (0.12, -0.26),
+    },
+    ("UCT", "c"): {
+        "m5v5": (0.93, 0.06),
+        "m30v30": (0.88, 0.20),
+        "m18v20": (0.40, -0.14),
+        "m24v30": (0.13, -0.25),
+    },
+    ("A-B", "c"): {
+        "m5v5": (0.96, 0.07),
+        "m30v30": (0.85, 0.21),
+        "m18v20": (0.36, -0.17),
+        "m24v30": (0.12, -0.24),
+    },
+    ("Profile", "c"): {
+        "m5v5": (0.84, 0.14),
+        "m30v30": (0.99, 0.33),
+        "m18v20": (0.61, 0.06),
+        "m24v30": (0.30, -0.11),
+    },
+    ("BC", "c"): {
+        "m5v5": (0.42, -0.04),
+        "m30v30": (0.76, 0.19),
+        "m18v20": (0.28, -0.12),
+        "m24v30": (0.10, -0.29),
+    },
+    ("DQfD", "c"): {
+        "m5v5": (0.85, 0.16),
+        "m30v30": (0.90, 0.41),
+        "m18v20": (0.47, -0.10),
+        "m24v30": (0.23, -0.20),
+    },
+    ("OGTL", "c"): {
+        "m5v5": (0.89, 0.08),
+        "m30v30": (0.93, 0.46),
+        "m18v20": (0.48, -0.07),
+        "m24v30": (0.26, -0.16),
+    },
+    ("Ours", "c"): {
+        "m5v5": (0.98, 0.18),
+        "m30v30": (1.00, 0.51),
+        "m18v20": (0.87, 0.24),
+        "m24v30": (0.76, 0.19),
+    },
+    ("D", "w"): {
+        "m5v5": (0.61, 0.02),
+        "m30v30": (0.13, -0.23),
+        "m18v20": (0.03, -0.36),
+        "m24v30": (0.00, -0.49),
+    },
+    ("UCT", "w"): {
+        "m5v5": (0.93, 0.01),
+        "m30v30": (0.73, 0.09),
+        "m18v20": (0.37, -0.19),
+        "m24v30": (0.00, -0.36),
+    },
+    ("A-B", "w"): {
+        "m5v5": (0.92, 0.02),
+        "m30v30": (0.71, 0.09),
+        "m18v20": (0.34, -0.26),
+        "m24v30": (0.00, -0.38),
+    },
+    ("Profile", "w"): {
+        "m5v5": (0.91, 0.16),
+        "m30v30": (0.96, 0.21),
+        "m18v20": (0.39, -0.08),
+        "m24v30": (0.02, -0.29),
+    },
+    ("BC", "w"): {
+        "m5v5": (0.60, 0.02),
+        "m30v30": (0.13, -0.23),
+        "m18v20": (0.02, -0.37),
+        "m24v30": (0.01, -0.49),
+    },
+    ("DQfD", "w"): {
+        "m5v5": (0.89, 0.08),
+        "m30v30": (0.81, 0.17),
+        "m18v20": (0.30, -0.14),
+        "m24v30": (0.03, -0.37),
+    },
+    ("OGTL", "w"): {
+        "m5v5": (0.97, 0.09),
+        "m30v30": (0.78, 0.15),
+        "m18v20": (0.36, -0.12),
+        "m24v30": (0.06, -0.38),
+    },
+    ("Ours", "w"): {
+        "m5v5": (0.99, 0.19),
+        "m30v30": (0.91, 0.22),
+        "m18v20": (0.71, 0.16),
+        "m24v30": (0.58, 0.03),
+    },
 }
 
 #: The paper's Table 2: row -> failure rate (its "FR (%)" row reads 0.72, 0.72, 0.35, 0.19,
@@ -117,7 +197,11 @@ class Learner:
 #: starting it from the demonstrator is what docs/reproducing.md uses at m18v20.
 _LARGE_QUICK: dict[str, object] = {"brd_start": "demonstrator"}
 #: Table 2's "w/o D" on top of any hybrid preset (as the hybrid presets 'wo-d'/'quick-wo-d').
-_WITHOUT_D: dict[str, object] = {"pretrain_critic": False, "brd_start": "actor", "lookahead_policy": "start"}
+_WITHOUT_D: dict[str, object] = {
+    "pretrain_critic": False,
+    "brd_start": "actor",
+    "lookahead_policy": "start",
+}
 
 
 @dataclass(frozen=True)
@@ -146,7 +230,12 @@ class Budget:
 
 
 def _learners(
-    preset: str, hybrid: str, hybrid_wo_d: str, *, large: dict[str, object], wo_d_overrides: dict[str, object],
+    preset: str,
+    hybrid: str,
+    hybrid_wo_d: str,
+    *,
+    large: dict[str, object],
+    wo_d_overrides: dict[str, object],
     random_overrides: dict[str, object] | None = None,
 ) -> dict[str, Learner]:
     return {
@@ -156,12 +245,18 @@ def _learners(
         "Ours": Learner("hybrid", hybrid, large_overrides=large),
         "Ours w/o D": Learner("hybrid", hybrid_wo_d, overrides=wo_d_overrides),
         # Fig. 3's "Random": the network starts from random weights, no demonstrations.
-        "Random": Learner("hybrid", hybrid_wo_d, overrides={**wo_d_overrides, **(random_overrides or {})}),
+        "Random": Learner(
+            "hybrid", hybrid_wo_d, overrides={**wo_d_overrides, **(random_overrides or {})}
+        ),
     }
 
 
 #: The search rows of 'cpu' and 'full': SparCraft's 40 ms as counts, per scenario.
-_SEARCH_40MS: dict[str, str] = {"UCT": "traversals={traversals},time_ms=0", "A-B": "nodes={nodes},time_ms=0", "Profile": "time_ms=0"}
+_SEARCH_40MS: dict[str, str] = {
+    "UCT": "traversals={traversals},time_ms=0",
+    "A-B": "nodes={nodes},time_ms=0",
+    "Profile": "time_ms=0",
+}
 
 #: The three budgets, by name.
 BUDGETS: dict[str, Budget] = {
@@ -199,7 +294,14 @@ BUDGETS: dict[str, Budget] = {
         # Random with Eq. 2's one-step Q: quick-wo-d's look-ahead, continued by the actor's own
         # network, runs on the JAX engine at about 1.6 episodes a minute at m18v20 (30 hours for
         # 3,000 episodes); the one-step Q runs on the native engine (3,000 episodes in ~11 min).
-        learners=_learners("quick", "quick", "quick-wo-d", large=_LARGE_QUICK, wo_d_overrides={}, random_overrides={"lookahead_steps": 1}),
+        learners=_learners(
+            "quick",
+            "quick",
+            "quick-wo-d",
+            large=_LARGE_QUICK,
+            wo_d_overrides={},
+            random_overrides={"lookahead_steps": 1},
+        ),
         search=dict(_SEARCH_40MS),
     ),
     "full": Budget(
@@ -222,7 +324,12 @@ BUDGETS: dict[str, Budget] = {
 #: SparCraft's own search in 40 ms of one core, n vs n Marines -> (UCT-CD traversals, ABCD nodes
 #: expanded) per decision: the upper ends of the ranges measured on SparCraft's current build
 #: (docs/reproducing.md#search-budgets).
-SPARCRAFT_40MS: dict[int, tuple[int, int]] = {8: (240, 350), 16: (105, 200), 32: (45, 100), 50: (25, 50)}
+SPARCRAFT_40MS: dict[int, tuple[int, int]] = {
+    8: (240, 350),
+    16: (105, 200),
+    32: (45, 100),
+    50: (25, 50),
+}
 
 
 def army_sizes(scenario: str) -> tuple[int, int]:
@@ -240,7 +347,9 @@ def sparcraft_40ms_budget(scenario: str) -> dict[str, int]:
     units = max(army_sizes(scenario))
     sizes = sorted(SPARCRAFT_40MS)
     # np.interp holds the end values outside the measured sizes.
-    t, n = (round(float(np.interp(units, sizes, [SPARCRAFT_40MS[k][i] for k in sizes]))) for i in (0, 1))
+    t, n = (
+        round(float(np.interp(units, sizes, [SPARCRAFT_40MS[k][i] for k in sizes]))) for i in (0, 1)
+    )
     return {"traversals": t, "nodes": n}
 
 
@@ -256,7 +365,26 @@ SEARCH_MODELS: dict[str, str] = {
 }
 
 __all__ = [
-    "BUDGETS", "CROSS_ENEMY", "DEMONSTRATORS", "EVAL_SEED", "FIG3_CURVES", "FIG3_SCENARIOS", "FIG3_WINDOW",
-    "PAPER_TABLE1", "PAPER_TABLE2", "PROFILE_PORTFOLIO", "SCENARIOS", "SEARCH_BUDGETS", "SEARCH_MODELS", "SPARCRAFT_40MS", "TABLE1_ROWS", "TABLE2_ROWS", "TABLES",
-    "TJ_DEMONSTRATOR", "Budget", "Learner", "army_sizes", "sparcraft_40ms_budget",
+    "BUDGETS",
+    "CROSS_ENEMY",
+    "DEMONSTRATORS",
+    "EVAL_SEED",
+    "FIG3_CURVES",
+    "FIG3_SCENARIOS",
+    "FIG3_WINDOW",
+    "PAPER_TABLE1",
+    "PAPER_TABLE2",
+    "PROFILE_PORTFOLIO",
+    "SCENARIOS",
+    "SEARCH_BUDGETS",
+    "SEARCH_MODELS",
+    "SPARCRAFT_40MS",
+    "TABLE1_ROWS",
+    "TABLE2_ROWS",
+    "TABLES",
+    "TJ_DEMONSTRATOR",
+    "Budget",
+    "Learner",
+    "army_sizes",
+    "sparcraft_40ms_budget",
 ]

@@ -34,7 +34,9 @@ def _spec(c: dict[str, Any]) -> Any:
 
     setting = get_setting(c["setting"])
     if c["env"] == "combat":
-        return TaskSpec(env="combat", scenario=c["scenario"], enemy=c["enemy"], setting=setting.name)
+        return TaskSpec(
+            env="combat", scenario=c["scenario"], enemy=c["enemy"], setting=setting.name
+        )
     return TaskSpec(env="traffic_junction", p_arrive=setting.p_arrive, setting=setting.name)
 
 
@@ -45,7 +47,9 @@ def _per_episode(ep: dict[str, Any]) -> dict[str, list[float]]:
     return {k: [float(x) for x in ep[k]] for k in keys}
 
 
-def evaluate_policy(task: Any, module: Any, variables: Any, script: str | None, n: int, seed: int) -> tuple[dict[str, Any], dict[str, list[float]]]:
+def evaluate_policy(
+    task: Any, module: Any, variables: Any, script: str | None, n: int, seed: int
+) -> tuple[dict[str, Any], dict[str, list[float]]]:
     """The protocol's evaluation (``training.evaluate``) of an actor or a script on the start
     states of ``seed``: its summary and the per-episode outcomes."""
     import jax
@@ -69,7 +73,13 @@ _STAT_NAMES = ("ms", "traversals", "nodes", "playouts")
 def _load_partial(path: Path | None, ident: dict[str, Any]) -> dict[str, Any]:
     """The finished battles an earlier attempt of this task saved, or none. A file of another
     task, or one that cannot be read, counts as none (it is only a cache)."""
-    empty = {**ident, "episodes": None, "stats": {name: [0.0, 0] for name in _STAT_NAMES}, "wall_s": 0.0, "cpu_s": 0.0}
+    empty = {
+        **ident,
+        "episodes": None,
+        "stats": {name: [0.0, 0] for name in _STAT_NAMES},
+        "wall_s": 0.0,
+        "cpu_s": 0.0,
+    }
     if path is None:
         return empty
     try:
@@ -77,7 +87,11 @@ def _load_partial(path: Path | None, ident: dict[str, Any]) -> dict[str, Any]:
         if not isinstance(saved, dict) or any(saved.get(k) != v for k, v in ident.items()):
             return empty
         lengths = {len(v) for v in saved["episodes"].values()}
-        if len(lengths) != 1 or lengths.pop() > ident["n"] or set(saved["stats"]) != set(_STAT_NAMES):
+        if (
+            len(lengths) != 1
+            or lengths.pop() > ident["n"]
+            or set(saved["stats"]) != set(_STAT_NAMES)
+        ):
             return empty
         return saved
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
@@ -103,7 +117,10 @@ def evaluate_search(
     before: dict[str, list[float]] = saved["episodes"] or {}
     first = len(next(iter(before.values()))) if before else 0
     if first:
-        print(f"{path}: {first} battles finished earlier, continuing from battle {first + 1}", flush=True)
+        print(
+            f"{path}: {first} battles finished earlier, continuing from battle {first + 1}",
+            flush=True,
+        )
     t0, c0, last_save = time.time(), time.process_time(), time.time()
 
     def merged(ep: dict[str, list[float]], decisions: list[Any]) -> dict[str, Any]:
@@ -113,19 +130,26 @@ def evaluate_search(
                 stats[name][0] += float(getattr(d, name))
                 stats[name][1] += 1
         return {
-            **ident, "episodes": {k: [*before.get(k, []), *map(float, v)] for k, v in ep.items()}, "stats": stats,
-            "wall_s": saved["wall_s"] + time.time() - t0, "cpu_s": saved["cpu_s"] + time.process_time() - c0,
+            **ident,
+            "episodes": {k: [*before.get(k, []), *map(float, v)] for k, v in ep.items()},
+            "stats": stats,
+            "wall_s": saved["wall_s"] + time.time() - t0,
+            "cpu_s": saved["cpu_s"] + time.process_time() - c0,
         }
 
     def on_battle(done: int, ep: dict[str, list[float]], decisions: list[Any]) -> None:
         nonlocal last_save
         won = [*before.get("won", []), *ep["won"]]
-        print(f"battle {done}/{n}: W so far {np.mean(won):.3f} ({time.time() - t0:.0f} s)", flush=True)
+        print(
+            f"battle {done}/{n}: W so far {np.mean(won):.3f} ({time.time() - t0:.0f} s)", flush=True
+        )
         if path is not None and done < n and time.time() - last_save >= PARTIAL_EVERY_S:
             write_json_atomic(path, merged(ep, decisions))
             last_save = time.time()
 
-    ep, decisions = play_search_battles(task, player, n=n, seed=seed, first=first, on_battle=on_battle)
+    ep, decisions = play_search_battles(
+        task, player, n=n, seed=seed, first=first, on_battle=on_battle
+    )
     total = merged({k: v.tolist() for k, v in ep.items()}, decisions)
     summary = task.summarize({k: np.asarray(v) for k, v in total["episodes"].items()})
     for name in _STAT_NAMES:
@@ -134,7 +158,9 @@ def evaluate_search(
     return summary, _per_episode(total["episodes"]), (saved["wall_s"], saved["cpu_s"])
 
 
-def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, Any], dict[str, list[float]], dict[str, Any]]:
+def train_then_evaluate(
+    c: dict[str, Any], task_dir: Path
+) -> tuple[dict[str, Any], dict[str, list[float]], dict[str, Any]]:
     """Train the learner of ``c`` with its seed in ``task_dir/run`` (resuming a killed run),
     then evaluate its policy on the protocol's start states against the cross-validation enemy."""
     import hybridmarl
@@ -148,8 +174,13 @@ def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, An
     # Continue a run an earlier attempt started (it wrote its config or a checkpoint).
     resume = (run_dir / "config.json").is_file() or latest_checkpoint(run_dir) is not None
     fields = {
-        "demonstrator": c["demonstrator"], "setting": c["setting"], "seed": c["seed"],
-        "run_dir": str(run_dir), "resume": resume, "progress": False, "tensorboard": False,
+        "demonstrator": c["demonstrator"],
+        "setting": c["setting"],
+        "seed": c["seed"],
+        "run_dir": str(run_dir),
+        "resume": resume,
+        "progress": False,
+        "tensorboard": False,
         **c["overrides"],
     }
     if env == "combat":
@@ -167,7 +198,9 @@ def train_then_evaluate(c: dict[str, Any], task_dir: Path) -> tuple[dict[str, An
     return ev["summary"], ev["per_episode"], training
 
 
-def evaluate_run(run_dir: Path, c: dict[str, Any], checkpoint: str | int | None = None) -> dict[str, Any]:
+def evaluate_run(
+    run_dir: Path, c: dict[str, Any], checkpoint: str | int | None = None
+) -> dict[str, Any]:
     """The protocol evaluation of a training run's policy (or of its ``checkpoint``) as the
     task config ``c`` prescribes: the run's own task (scenario, setting) against the task's
     cross-validation enemy, on the start states of its ``eval_seed``. Returns ``summary``,
@@ -177,12 +210,20 @@ def evaluate_run(run_dir: Path, c: dict[str, Any], checkpoint: str | int | None 
     from hybridmarl.training.task import make_task
 
     policy = load_policy(run_dir, checkpoint)
-    spec = dataclasses.replace(policy.spec, enemy=c["enemy"]) if c["env"] == "combat" else policy.spec
+    spec = (
+        dataclasses.replace(policy.spec, enemy=c["enemy"]) if c["env"] == "combat" else policy.spec
+    )
     wall0, cpu0 = time.time(), time.process_time()
-    summary, per_episode = evaluate_policy(make_task(spec), policy.module, policy.variables, None, c["n"], c["eval_seed"])
+    summary, per_episode = evaluate_policy(
+        make_task(spec), policy.module, policy.variables, None, c["n"], c["eval_seed"]
+    )
     return {
-        "summary": summary, "per_episode": per_episode, "weights": policy.weights, "meta": policy.meta,
-        "wall_s": time.time() - wall0, "cpu_s": time.process_time() - cpu0,
+        "summary": summary,
+        "per_episode": per_episode,
+        "weights": policy.weights,
+        "meta": policy.meta,
+        "wall_s": time.time() - wall0,
+        "cpu_s": time.process_time() - cpu0,
     }
 
 
@@ -199,10 +240,14 @@ def run_task(task_dir: Path) -> dict[str, Any]:
     if kind == "train":
         summary, per_episode, training = train_then_evaluate(c, task_dir)
     elif kind == "search":
-        summary, per_episode, (wall_before, cpu_before) = evaluate_search(make_task(_spec(c)), c["player"], c["n"], c["eval_seed"], task_dir)
+        summary, per_episode, (wall_before, cpu_before) = evaluate_search(
+            make_task(_spec(c)), c["player"], c["n"], c["eval_seed"], task_dir
+        )
         wall0, cpu0 = wall0 - wall_before, cpu0 - cpu_before
     elif kind == "script":
-        summary, per_episode = evaluate_policy(make_task(_spec(c)), None, None, c["player"], c["n"], c["eval_seed"])
+        summary, per_episode = evaluate_policy(
+            make_task(_spec(c)), None, None, c["player"], c["n"], c["eval_seed"]
+        )
     else:
         raise ValueError(f"unknown task kind {kind!r}")
     wall_s, cpu_s = time.time() - wall0, time.process_time() - cpu0
@@ -212,9 +257,16 @@ def run_task(task_dir: Path) -> dict[str, Any]:
         wall_s = max(wall_s, float(training.get("wall_s") or 0.0) + training["eval_wall_s"])
         cpu_s = max(cpu_s, float(training.get("cpu_s") or 0.0) + training["eval_cpu_s"])
     result = {
-        "key": task["key"], "kind": kind, "config": c, "summary": summary, "per_episode": per_episode,
-        "training": training, "wall_s": wall_s, "cpu_s": cpu_s,
-        "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"), "version": __version__,
+        "key": task["key"],
+        "kind": kind,
+        "config": c,
+        "summary": summary,
+        "per_episode": per_episode,
+        "training": training,
+        "wall_s": wall_s,
+        "cpu_s": cpu_s,
+        "finished": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "version": __version__,
     }
     write_json_atomic(task_dir / RESULT_FILE, result)
     (task_dir / PARTIAL_FILE).unlink(missing_ok=True)

@@ -80,7 +80,16 @@ class _Timeout(Exception):
 class TTEntry:
     __slots__ = ("h2", "score", "depth", "kind", "best")
 
-    def __init__(self, h2: int, score: Score, depth: int, kind: int, first_player: int, best_first, best_second):
+    def __init__(
+        self,
+        h2: int,
+        score: Score,
+        depth: int,
+        kind: int,
+        first_player: int,
+        best_first,
+        best_second,
+    ):
         self.h2 = h2
         self.score = score
         self.depth = depth
@@ -142,7 +151,9 @@ class _Node:
 
     def hash(self) -> tuple[int, int]:
         if self._hash is None:
-            d = hashlib.blake2b(np.ascontiguousarray(self["hash"]).tobytes(), digest_size=8).digest()
+            d = hashlib.blake2b(
+                np.ascontiguousarray(self["hash"]).tobytes(), digest_size=8
+            ).digest()
             self._hash = (int.from_bytes(d[:4], "little"), int.from_bytes(d[4:], "little"))
         return self._hash
 
@@ -158,7 +169,9 @@ class ABCDPlayer(SearchPlayer):
         self.ordering: tuple[str, ...] = o["ordering"]
         self.model: str | None = o["opponent_model"]
         self.fallback_script: str = o["fallback"]
-        self.info_scripts = unique(self.ordering + ((self.model,) if self.model else ()) + (self.fallback_script,))
+        self.info_scripts = unique(
+            self.ordering + ((self.model,) if self.model else ()) + (self.fallback_script,)
+        )
         self.playout = (o["playout0"], o["playout1"])
         self.tt = TranspositionTable(o["tt_size"]) if o["tt"] else None
         #: Prefetch the eldest leaves of depth-2 nodes (``_Search._prefetch_eldest``); switching
@@ -174,14 +187,27 @@ class ABCDPlayer(SearchPlayer):
 
     def _warmup(self, root: np.ndarray, dev: DeviceArgs) -> None:
         o = self.options
-        self._engine(dev, SearchStats()).warmup(root, [1, resolve_batch(o["batch"], dev.num_slots, o["max_children"]), o["max_children"]])
+        self._engine(dev, SearchStats()).warmup(
+            root,
+            [1, resolve_batch(o["batch"], dev.num_slots, o["max_children"]), o["max_children"]],
+        )
 
     # -- search ------------------------------------------------------------------------------
-    def _search(self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float) -> np.ndarray:
+    def _search(
+        self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float
+    ) -> np.ndarray:
         o = self.options
         n = dev.num_slots
         engine = self._engine(dev, stats)
-        rinfo = engine.run(1, root[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), p, 0)
+        rinfo = engine.run(
+            1,
+            root[None],
+            np.zeros((1, 2, n), np.int32),
+            np.zeros((1, 2), bool),
+            np.zeros(1, bool),
+            p,
+            0,
+        )
         root_node = _Node(root, rinfo["info"], 0, 0)
         acting = root_node["acting"][p]
         fb = root_node["scripts"][self.info_scripts.index(self.fallback_script), p]
@@ -211,7 +237,15 @@ class ABCDPlayer(SearchPlayer):
 class _Search:
     """One decision's alpha-beta state (counters, budget, compiled calls)."""
 
-    def __init__(self, player: ABCDPlayer, engine: Engine, p: int, stats: SearchStats, deadline: float, max_nodes: int):
+    def __init__(
+        self,
+        player: ABCDPlayer,
+        engine: Engine,
+        p: int,
+        stats: SearchStats,
+        deadline: float,
+        max_nodes: int,
+    ):
         self.pl = player
         self.o = player.options
         self.engine = engine
@@ -229,7 +263,9 @@ class _Search:
     def _enter(self) -> None:
         """``nodesExpanded++`` and the budget test at every node."""
         self.stats.nodes += 1
-        if (self.max_nodes and self.stats.nodes > self.max_nodes) or time.perf_counter() >= self.deadline:
+        if (
+            self.max_nodes and self.stats.nodes > self.max_nodes
+        ) or time.perf_counter() >= self.deadline:
             raise _Timeout
 
     def _player_to_move(self, node: _Node, depth: int, last: int, first_sim: bool) -> int:
@@ -247,11 +283,15 @@ class _Search:
             return int(self.pl.rng.integers(2))
         return 0 if movers[0] else 1
 
-    def _call(self, k: int, node: _Node, rows: list[tuple[np.ndarray, np.ndarray]], cap: int) -> dict[str, Any]:
+    def _call(
+        self, k: int, node: _Node, rows: list[tuple[np.ndarray, np.ndarray]], cap: int
+    ) -> dict[str, Any]:
         """Apply each (actions [2, U], mask [2]) to ``node``'s state in one call of batch ``k``."""
         actions = np.stack([a for a, _ in rows])
         mask = np.stack([mk for _, mk in rows])
-        return self.engine.run(k, node.vec, actions, mask, np.ones(len(rows), bool), self.p, cap, self.use_ltd)
+        return self.engine.run(
+            k, node.vec, actions, mask, np.ones(len(rows), bool), self.p, cap, self.use_ltd
+        )
 
     def _score(self, value: int, both_dead: bool, path_moves: int, playout_moves: int) -> Score:
         if both_dead:
@@ -299,10 +339,20 @@ class _Search:
 
         scripts = node["scripts"]
         ordered = [scripts[self.pl.info_scripts.index(s), ptm] for s in self.pl.ordering]
-        model = scripts[self.pl.info_scripts.index(self.pl.model), ptm] if (self.pl.model and ptm != p) else None
+        model = (
+            scripts[self.pl.info_scripts.index(self.pl.model), ptm]
+            if (self.pl.model and ptm != p)
+            else None
+        )
         vecs = child_moves(
-            node["legal"][ptm], node["acting"][ptm], node["order"][1 - ptm], ordered, self.o["max_children"], self.pl.rng,
-            model_move=model, only_first=only_first,
+            node["legal"][ptm],
+            node["acting"][ptm],
+            node["order"][1 - ptm],
+            ordered,
+            self.o["max_children"],
+            self.pl.rng,
+            model_move=model,
+            only_first=only_first,
         )
 
         best_move: np.ndarray | None = None
@@ -335,7 +385,15 @@ class _Search:
                 self._leaf_loop(node, vecs, rows, update, lambda: alpha >= beta, eldest)
             else:
                 out = self._call(self.o["max_children"], node, rows, 0)
-                kids = [_Node(out["child"][i], out["info"], i, node.path_moves + int(out["step_moves"][i, p])) for i in range(len(vecs))]
+                kids = [
+                    _Node(
+                        out["child"][i],
+                        out["info"],
+                        i,
+                        node.path_moves + int(out["step_moves"][i, p]),
+                    )
+                    for i in range(len(vecs))
+                ]
                 pre = self._prefetch_eldest([(c, ptm, None) for c in kids]) if depth == 2 else {}
                 for i, vec in enumerate(vecs):
                     child = kids[i]
@@ -347,7 +405,9 @@ class _Search:
                         val = self._score(ev, both_dead, child.path_moves, 0)
                         resp = None
                     else:
-                        val, resp = self.alpha_beta(child, depth - 1, ptm, None, alpha, beta, pre.get(i))
+                        val, resp = self.alpha_beta(
+                            child, depth - 1, ptm, None, alpha, beta, pre.get(i)
+                        )
                     update(val, vec, resp)
                     if alpha >= beta:
                         break
@@ -361,7 +421,9 @@ class _Search:
                 tt.save(h1, TTEntry(h2, value, depth, kind, ptm, best_move, best_response))
         return (alpha if is_max else beta), best_move
 
-    def _leaf_rows(self, vecs: list[np.ndarray], ptm: int, prev_sim: np.ndarray | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    def _leaf_rows(
+        self, vecs: list[np.ndarray], ptm: int, prev_sim: np.ndarray | None
+    ) -> list[tuple[np.ndarray, np.ndarray]]:
         rows = []
         for vec in vecs:
             a = np.zeros((2, self.dev.num_slots), np.int32)
@@ -372,20 +434,35 @@ class _Search:
             rows.append((a, mk))
         return rows
 
-    def _leaf_values(self, bases: list[np.ndarray], rows: list[tuple[np.ndarray, np.ndarray]], path_moves: list[int], k: int) -> list[LeafValue]:
+    def _leaf_values(
+        self,
+        bases: list[np.ndarray],
+        rows: list[tuple[np.ndarray, np.ndarray]],
+        path_moves: list[int],
+        k: int,
+    ) -> list[LeafValue]:
         """Evaluate leaves (base state, joint action) in one engine call of batch ``k``."""
         base = np.stack(bases) if len(bases) > 1 else bases[0]  # one [L] state: shared by all rows
         actions = np.stack([a for a, _ in rows])
         mask = np.stack([mk for _, mk in rows])
-        out = self.engine.run(k, base, actions, mask, np.ones(len(rows), bool), self.p, self.cap, self.use_ltd)
+        out = self.engine.run(
+            k, base, actions, mask, np.ones(len(rows), bool), self.p, self.cap, self.use_ltd
+        )
         if self.o["eval"] == "playout":
             self.stats.playouts += len(rows)
         return [
-            (int(out["value"][j]), bool(out["both_dead"][j]), path_moves[j] + int(out["step_moves"][j, self.p]), int(out["playout_moves"][j]))
+            (
+                int(out["value"][j]),
+                bool(out["both_dead"][j]),
+                path_moves[j] + int(out["step_moves"][j, self.p]),
+                int(out["playout_moves"][j]),
+            )
             for j in range(len(rows))
         ]
 
-    def _prefetch_eldest(self, kids: list[tuple[_Node, int, np.ndarray | None]]) -> dict[int, tuple[np.ndarray, LeafValue]]:
+    def _prefetch_eldest(
+        self, kids: list[tuple[_Node, int, np.ndarray | None]]
+    ) -> dict[int, tuple[np.ndarray, LeafValue]]:
         """Young brothers wait, one level up: before a depth-2 node searches its children, the
         first (eldest) leaf of every child is evaluated in one batched call.
 
@@ -396,7 +473,11 @@ class _Search:
         transposition table say. Values are those the serial search would compute; a prefetched
         leaf whose parent is cut off or answered from the table is wasted work only.
         """
-        if not self.pl.prefetch or not (self.pl.ordering or self.pl.model) or self.o["player_to_move"] == "random":
+        if (
+            not self.pl.prefetch
+            or not (self.pl.ordering or self.pl.model)
+            or self.o["player_to_move"] == "random"
+        ):
             return {}
         want: list[tuple[int, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray], int]] = []
         for i, (child, last, prev_sim) in enumerate(kids):
@@ -414,10 +495,14 @@ class _Search:
         if len(want) < 2:
             return {}
         k = self.o["max_children"]
-        vals = self._leaf_values([w[2] for w in want], [w[3] for w in want], [w[4] for w in want], k)
+        vals = self._leaf_values(
+            [w[2] for w in want], [w[3] for w in want], [w[4] for w in want], k
+        )
         return {w[0]: (w[1], v) for w, v in zip(want, vals, strict=True)}
 
-    def _leaf_loop(self, node: _Node, vecs, rows, update, cut, eldest: tuple[np.ndarray, LeafValue] | None) -> None:
+    def _leaf_loop(
+        self, node: _Node, vecs, rows, update, cut, eldest: tuple[np.ndarray, LeafValue] | None
+    ) -> None:
         """Children that are leaves: eldest alone (or prefetched), then the rest in batches,
         consumed in order with SparCraft's node count and budget test."""
         batch = self.batch
@@ -430,7 +515,9 @@ class _Search:
                 idx, k = [i], 1
             else:
                 idx, k = list(range(i, min(i + batch, len(vecs)))), batch
-            vals = self._leaf_values([node.vec], [rows[j] for j in idx], [node.path_moves] * len(idx), k)
+            vals = self._leaf_values(
+                [node.vec], [rows[j] for j in idx], [node.path_moves] * len(idx), k
+            )
             for j, v in zip(idx, vals, strict=True):
                 values[j] = v
 

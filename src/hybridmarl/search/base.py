@@ -104,7 +104,20 @@ class SearchStats:
     extra: dict[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
-        d = {k: getattr(self, k) for k in ("algorithm", "ms", "cpu_ms", "traversals", "nodes", "playouts", "depth", "calls", "fallback")}
+        d = {
+            k: getattr(self, k)
+            for k in (
+                "algorithm",
+                "ms",
+                "cpu_ms",
+                "traversals",
+                "nodes",
+                "playouts",
+                "depth",
+                "calls",
+                "fallback",
+            )
+        }
         d.update(self.extra)
         return d
 
@@ -138,62 +151,196 @@ class Option:
     minimum: float | None = None
 
 
-def _opt(name: str, kind: str, default: Any, help: str, choices: tuple[str, ...] = (), minimum: float | None = None) -> Option:
+def _opt(
+    name: str,
+    kind: str,
+    default: Any,
+    help: str,
+    choices: tuple[str, ...] = (),
+    minimum: float | None = None,
+) -> Option:
     return Option(name, kind, default, help, choices, minimum)
 
 
 _COMMON_SEARCH = (
-    _opt("max_children", "int", 20, "children per node; 20 in SparCraft's sample config (docs/baselines.md#abcd; docs/baselines.md#uct-cd)", minimum=1),
-    _opt("ordering", "scripts", ("nokdps", "kiter-dps"), "ScriptFirst move ordering scripts, first children of every node; 'none' = plain odometer"),
-    _opt("playout0", "script", "nokdps", "player 0's playout script (SparCraft's P0Script; sample config NOKDPS)"),
-    _opt("playout1", "script", "nokdps", "player 1's playout script (P1Script; sample config NOKDPS)"),
-    _opt("eval", "choice", "playout", "leaf evaluation: playout (200-turn script playout + LTD2), ltd2 or ltd", choices=K.EVAL_METHODS),
-    _opt("player_to_move", "choice", "alternate", "first mover at simultaneous nodes below the root (sample config Alternate)", choices=("alternate", "not-alternate", "random")),
-    _opt("opponent_model", "script?", None, "script the opponent is assumed to play (one child at its nodes); sample config None"),
+    _opt(
+        "max_children",
+        "int",
+        20,
+        "children per node; 20 in SparCraft's sample config (docs/baselines.md#abcd; docs/baselines.md#uct-cd)",
+        minimum=1,
+    ),
+    _opt(
+        "ordering",
+        "scripts",
+        ("nokdps", "kiter-dps"),
+        "ScriptFirst move ordering scripts, first children of every node; 'none' = plain odometer",
+    ),
+    _opt(
+        "playout0",
+        "script",
+        "nokdps",
+        "player 0's playout script (SparCraft's P0Script; sample config NOKDPS)",
+    ),
+    _opt(
+        "playout1", "script", "nokdps", "player 1's playout script (P1Script; sample config NOKDPS)"
+    ),
+    _opt(
+        "eval",
+        "choice",
+        "playout",
+        "leaf evaluation: playout (200-turn script playout + LTD2), ltd2 or ltd",
+        choices=K.EVAL_METHODS,
+    ),
+    _opt(
+        "player_to_move",
+        "choice",
+        "alternate",
+        "first mover at simultaneous nodes below the root (sample config Alternate)",
+        choices=("alternate", "not-alternate", "random"),
+    ),
+    _opt(
+        "opponent_model",
+        "script?",
+        None,
+        "script the opponent is assumed to play (one child at its nodes); sample config None",
+    ),
 )
 
 ENGINES = ("auto", "native", "jax")
 _ENGINE_OPTION = _opt(
-    "engine", "choice", "auto",
+    "engine",
+    "choice",
+    "auto",
     "engine for every call the search makes: native (Numba, CPU), jax, or auto = native when JAX runs on the CPU (docs/engine-backends.md)",
     choices=ENGINES,
 )
 
 UCT_OPTIONS: tuple[Option, ...] = (
-    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, 0 = none (sample config / CIG 2013: 40 ms)", minimum=0),
-    _opt("traversals", "int", 5000, "maximum traversals per decision (sample config 5000)", minimum=1),
+    _opt(
+        "time_ms",
+        "float",
+        40.0,
+        "wall-clock budget per decision in ms, 0 = none (sample config / CIG 2013: 40 ms)",
+        minimum=0,
+    ),
+    _opt(
+        "traversals", "int", 5000, "maximum traversals per decision (sample config 5000)", minimum=1
+    ),
     _opt("c", "float", 1.6, "UCB exploration constant (sample config 1.6)", minimum=0),
     *_COMMON_SEARCH,
-    _opt("root_select", "choice", "most-visited", "root move: most visited child (SparCraft default) or highest UCB value", choices=("most-visited", "highest-value")),
-    _opt("batch", "batch", "auto", "leaf-parallel batch: leaves evaluated per engine call (virtual loss); 1 = SparCraft's serial UCT; auto = by army size, see auto_batch (our deviation)"),
+    _opt(
+        "root_select",
+        "choice",
+        "most-visited",
+        "root move: most visited child (SparCraft default) or highest UCB value",
+        choices=("most-visited", "highest-value"),
+    ),
+    _opt(
+        "batch",
+        "batch",
+        "auto",
+        "leaf-parallel batch: leaves evaluated per engine call (virtual loss); 1 = SparCraft's serial UCT; auto = by army size, see auto_batch (our deviation)",
+    ),
     _ENGINE_OPTION,
 )
 
 ABCD_OPTIONS: tuple[Option, ...] = (
-    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, 0 = none (sample config 40 ms)", minimum=0),
-    _opt("nodes", "int", 0, "deterministic budget: stop after this many nodes (SparCraft's nodesExpanded), 0 = none", minimum=0),
-    _opt("max_depth", "int", 50, "iterative deepening limit (SearchExperiment's IDAlphaBeta: 50)", minimum=1),
+    _opt(
+        "time_ms",
+        "float",
+        40.0,
+        "wall-clock budget per decision in ms, 0 = none (sample config 40 ms)",
+        minimum=0,
+    ),
+    _opt(
+        "nodes",
+        "int",
+        0,
+        "deterministic budget: stop after this many nodes (SparCraft's nodesExpanded), 0 = none",
+        minimum=0,
+    ),
+    _opt(
+        "max_depth",
+        "int",
+        50,
+        "iterative deepening limit (SearchExperiment's IDAlphaBeta: 50)",
+        minimum=1,
+    ),
     *_COMMON_SEARCH,
-    _opt("tt", "bool", True, "transposition table (100,000 entries, scan 10, kept across decisions of a game)"),
-    _opt("tt_size", "int", 100_000, "transposition table entries (Constants::Transposition_Table_Size)", minimum=16),
+    _opt(
+        "tt",
+        "bool",
+        True,
+        "transposition table (100,000 entries, scan 10, kept across decisions of a game)",
+    ),
+    _opt(
+        "tt_size",
+        "int",
+        100_000,
+        "transposition table entries (Constants::Transposition_Table_Size)",
+        minimum=16,
+    ),
     _opt("fallback", "script", "nokdps", "move when depth 1 does not complete (SparCraft: NOKDPS)"),
-    _opt("batch", "batch", "auto", "leaf playouts per engine call after the eldest child (young-brothers-wait batching); 1 = serial; auto = by army size, at most max_children (our deviation)"),
+    _opt(
+        "batch",
+        "batch",
+        "auto",
+        "leaf playouts per engine call after the eldest child (young-brothers-wait batching); 1 = serial; auto = by army size, at most max_children (our deviation)",
+    ),
     _ENGINE_OPTION,
 )
 
 PGS_OPTIONS: tuple[Option, ...] = (
-    _opt("time_ms", "float", 40.0, "wall-clock budget per decision in ms, checked before each unit, 0 = none (CIG 2013: 40 ms; sample config 0)", minimum=0),
-    _opt("playouts", "int", 0, "deterministic budget: stop improving once this many playouts ran, 0 = none", minimum=0),
-    _opt("portfolio", "scripts", ("nokdps", "kiter-dps"), "script portfolio, in order (hard-coded {NOKDPS, KiterDPS} in SparCraft)"),
-    _opt("enemy_seed", "script", "nokdps", "enemy script while seeding (Player_PortfolioGreedySearch default NOKDPS)"),
+    _opt(
+        "time_ms",
+        "float",
+        40.0,
+        "wall-clock budget per decision in ms, checked before each unit, 0 = none (CIG 2013: 40 ms; sample config 0)",
+        minimum=0,
+    ),
+    _opt(
+        "playouts",
+        "int",
+        0,
+        "deterministic budget: stop improving once this many playouts ran, 0 = none",
+        minimum=0,
+    ),
+    _opt(
+        "portfolio",
+        "scripts",
+        ("nokdps", "kiter-dps"),
+        "script portfolio, in order (hard-coded {NOKDPS, KiterDPS} in SparCraft)",
+    ),
+    _opt(
+        "enemy_seed",
+        "script",
+        "nokdps",
+        "enemy script while seeding (Player_PortfolioGreedySearch default NOKDPS)",
+    ),
     _opt("iterations", "int", 1, "improvement passes I (default 1)", minimum=1),
     _opt("responses", "int", 0, "response rounds R (default 0)", minimum=0),
-    _opt("playout_turns", "int", K.PGS_PLAYOUT_TURNS, "playout cap; the loop runs while rounds <= cap, i.e. up to cap+1 turns", minimum=1),
-    _opt("lookahead", "lookahead", 1, "1: one unit's candidates per engine call (SparCraft's order); 2: a pair of units per call, speculatively, same result (measured: at most ~10% faster)"),
+    _opt(
+        "playout_turns",
+        "int",
+        K.PGS_PLAYOUT_TURNS,
+        "playout cap; the loop runs while rounds <= cap, i.e. up to cap+1 turns",
+        minimum=1,
+    ),
+    _opt(
+        "lookahead",
+        "lookahead",
+        1,
+        "1: one unit's candidates per engine call (SparCraft's order); 2: a pair of units per call, speculatively, same result (measured: at most ~10% faster)",
+    ),
     _ENGINE_OPTION,
 )
 
-ALGORITHMS: dict[str, tuple[Option, ...]] = {"uct": UCT_OPTIONS, "abcd": ABCD_OPTIONS, "pgs": PGS_OPTIONS}
+ALGORITHMS: dict[str, tuple[Option, ...]] = {
+    "uct": UCT_OPTIONS,
+    "abcd": ABCD_OPTIONS,
+    "pgs": PGS_OPTIONS,
+}
 _NAME_ALIASES = {
     "uct": "uct",
     "uct-cd": "uct",
@@ -225,7 +372,9 @@ def describe_options(algorithm: str | None = None) -> str:
         for o in opts:
             d = "+".join(o.default) if isinstance(o.default, tuple) else o.default
             lines.append(f"  {o.name}={d}  -- {o.help}")
-        lines.append(f"  script=NAME  -- shorthand: sets {', '.join(_SCRIPT_SHORTHAND[alg])} to NAME")
+        lines.append(
+            f"  script=NAME  -- shorthand: sets {', '.join(_SCRIPT_SHORTHAND[alg])} to NAME"
+        )
     return "\n".join(lines)
 
 
@@ -271,10 +420,18 @@ def _convert(opt: Option, value: Any, where: str) -> Any:
     elif kind == "script":
         v = _script_name(value, what)
     elif kind == "script?":
-        v = None if value is None or (isinstance(value, str) and value.lower() == "none") else _script_name(value, what)
+        v = (
+            None
+            if value is None or (isinstance(value, str) and value.lower() == "none")
+            else _script_name(value, what)
+        )
     elif kind == "scripts":
         if isinstance(value, str):
-            items = [] if value.lower() == "none" else [s for s in value.replace("/", "+").split("+") if s]
+            items = (
+                []
+                if value.lower() == "none"
+                else [s for s in value.replace("/", "+").split("+") if s]
+            )
         elif isinstance(value, Sequence):
             items = list(value)
         else:
@@ -303,7 +460,9 @@ def _convert(opt: Option, value: Any, where: str) -> Any:
 def parse_spec(spec: str) -> tuple[str, dict[str, str]]:
     """Split ``name:key=value,...`` into the name and raw option strings."""
     if not isinstance(spec, str) or not spec.strip():
-        raise ValueError("player spec must be a non-empty string such as 'uct:time_ms=40' or 'nokdps'")
+        raise ValueError(
+            "player spec must be a non-empty string such as 'uct:time_ms=40' or 'nokdps'"
+        )
     name, _, rest = spec.strip().partition(":")
     opts: dict[str, str] = {}
     if rest.strip():
@@ -339,7 +498,9 @@ def resolve_options(algorithm: str, raw: dict[str, Any], where: str) -> dict[str
     unknown = sorted(set(raw) - set(table))
     if unknown:
         known = ", ".join(sorted(table) + ["script"] + (["playout"] if "playout0" in table else []))
-        raise ValueError(f"{where}: unknown option(s) {', '.join(map(repr, unknown))} (known: {known})")
+        raise ValueError(
+            f"{where}: unknown option(s) {', '.join(map(repr, unknown))} (known: {known})"
+        )
     for k, v in raw.items():
         values[k] = _convert(table[k], v, where)
     if algorithm == "pgs" and not values["portfolio"]:
@@ -375,8 +536,6 @@ class ScriptPlayer:
         out = np.asarray(fn(sub, state, rules.walkable)[p], np.int32)
         self._stats = SearchStats(algorithm="script", ms=(time.perf_counter() - t0) * 1e3, calls=1)
         return out
-
-
 
 
 class DeviceArgs:
@@ -440,7 +599,9 @@ class SearchPlayer(abc.ABC):
         return np.asarray(move, np.int32)
 
     @abc.abstractmethod
-    def _search(self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float) -> np.ndarray:
+    def _search(
+        self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float
+    ) -> np.ndarray:
         """The algorithm's search from the packed root: the move of player ``p``."""
 
     def warmup(self, state: GameState, rules: Rules) -> float:
@@ -503,7 +664,14 @@ class Engine:
     every call padded to a fixed batch size, so each size compiles once) or
     ``native.search_call`` (the native engine; same results, no padding); counts the calls."""
 
-    def __init__(self, player: SearchPlayer, dev: DeviceArgs, info_scripts: tuple[str, ...], playout_scripts: tuple[str, str], stats: SearchStats):
+    def __init__(
+        self,
+        player: SearchPlayer,
+        dev: DeviceArgs,
+        info_scripts: tuple[str, ...],
+        playout_scripts: tuple[str, str],
+        stats: SearchStats,
+    ):
         self.player = player
         self.dev = dev
         self.info_scripts = info_scripts
@@ -511,7 +679,9 @@ class Engine:
         self.stats = stats
 
     def fn(self, k: int) -> Callable:
-        return K.search_fn(self.dev.num_slots, k, self.info_scripts, self.playout_scripts, self.dev.rules_key)
+        return K.search_fn(
+            self.dev.num_slots, k, self.info_scripts, self.playout_scripts, self.dev.rules_key
+        )
 
     def run(
         self,
@@ -532,8 +702,17 @@ class Engine:
             from hybridmarl.search.native import search_call
 
             out = search_call(
-                self.dev.native, base, actions, mask, do_step, player, cap, use_ltd,
-                self.info_scripts, self.playout_scripts, int(self.player.key()[0]),
+                self.dev.native,
+                base,
+                actions,
+                mask,
+                do_step,
+                player,
+                cap,
+                use_ltd,
+                self.info_scripts,
+                self.playout_scripts,
+                int(self.player.key()[0]),
             )
             self.stats.calls += 1
             return out
@@ -543,12 +722,21 @@ class Engine:
             base = np.concatenate([base, np.broadcast_to(base[:1], (k - m, base.shape[1]))])
         if m < k:
             pad = k - m
-            actions = np.concatenate([actions, np.broadcast_to(actions[:1], (pad, *actions.shape[1:]))])
+            actions = np.concatenate(
+                [actions, np.broadcast_to(actions[:1], (pad, *actions.shape[1:]))]
+            )
             mask = np.concatenate([mask, np.broadcast_to(mask[:1], (pad, 2))])
             do_step = np.concatenate([do_step, np.broadcast_to(do_step[:1], (pad,))])
         out = self.fn(k)(
-            self.player.key(), base, actions.astype(np.int32), mask.astype(bool), do_step.astype(bool),
-            np.full(k, player, np.int32), np.int32(cap), np.bool_(use_ltd), *self.dev.args,
+            self.player.key(),
+            base,
+            actions.astype(np.int32),
+            mask.astype(bool),
+            do_step.astype(bool),
+            np.full(k, player, np.int32),
+            np.int32(cap),
+            np.bool_(use_ltd),
+            *self.dev.args,
         )
         self.stats.calls += 1
         return jax.device_get(out)
@@ -556,19 +744,42 @@ class Engine:
     def info(self, vec: np.ndarray) -> dict[str, np.ndarray]:
         """Node info of one state (no turn played, no playout), without the batch axis."""
         n = self.dev.num_slots
-        out = self.run(1, vec[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), 0, 0)
+        out = self.run(
+            1,
+            vec[None],
+            np.zeros((1, 2, n), np.int32),
+            np.zeros((1, 2), bool),
+            np.zeros(1, bool),
+            0,
+            0,
+        )
         return {k: v[0] for k, v in out["info"].items()}
 
     def warmup(self, vec: np.ndarray, sizes: Sequence[int]) -> None:
         n = self.dev.num_slots
         if self.dev.native is not None:  # one compiled program for every batch size
-            self.run(1, vec[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), 0, 0)
+            self.run(
+                1,
+                vec[None],
+                np.zeros((1, 2, n), np.int32),
+                np.zeros((1, 2), bool),
+                np.zeros(1, bool),
+                0,
+                0,
+            )
             return
         for k in sorted(set(sizes)):
             jax.block_until_ready(
                 self.fn(k)(
-                    self.player.key(), np.repeat(vec[None], k, 0), np.zeros((k, 2, n), np.int32), np.zeros((k, 2), bool),
-                    np.zeros(k, bool), np.zeros(k, np.int32), np.int32(0), np.bool_(False), *self.dev.args,
+                    self.player.key(),
+                    np.repeat(vec[None], k, 0),
+                    np.zeros((k, 2, n), np.int32),
+                    np.zeros((k, 2), bool),
+                    np.zeros(k, bool),
+                    np.zeros(k, np.int32),
+                    np.int32(0),
+                    np.bool_(False),
+                    *self.dev.args,
                 )
             )
 

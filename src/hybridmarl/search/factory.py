@@ -27,7 +27,9 @@ def make_player(spec: str, **options: Any) -> Player:
             script = canonical_name(name)
         except KeyError:
             algs = ", ".join(sorted(_NAME_ALIASES))
-            raise ValueError(f"unknown player {name!r}: use a search ({algs}) or a script name") from None
+            raise ValueError(
+                f"unknown player {name!r}: use a search ({algs}) or a script name"
+            ) from None
         if raw or options:
             raise ValueError(f"player spec {spec!r}: scripts take no options")
         return ScriptPlayer(script)

@@ -82,7 +82,9 @@ class Consts:
 
 def _pack(state: GameState) -> jax.Array:
     parts = [getattr(state, f).reshape(-1) for f in DYNAMIC_FIELDS]
-    scalars = jnp.stack([state.time, state.turn, state.stale, state.prev_hp_sum[0], state.prev_hp_sum[1]])
+    scalars = jnp.stack(
+        [state.time, state.turn, state.stale, state.prev_hp_sum[0], state.prev_hp_sum[1]]
+    )
     return jnp.concatenate(parts + [scalars.astype(jnp.int32)]).astype(jnp.int32)
 
 
@@ -103,7 +105,9 @@ def pack_state(state: GameState) -> tuple[np.ndarray, Consts]:
     return vec, consts
 
 
-def unpack(vec: jax.Array, utype: jax.Array, uid: jax.Array, ltd_total: jax.Array, ltd2_total: jax.Array) -> GameState:
+def unpack(
+    vec: jax.Array, utype: jax.Array, uid: jax.Array, ltd_total: jax.Array, ltd2_total: jax.Array
+) -> GameState:
     """The ``GameState`` of a packed vector (inside jit)."""
     n = utype.shape[-1]
     size = 2 * n
@@ -184,14 +188,24 @@ def evaluate(state: GameState, p: int | jax.Array, use_ltd: bool | jax.Array = F
 # ----------------------------------------------------------------------------- node info
 
 
-def _state_info(key: jax.Array, state: GameState, rules: Rules, scripts: tuple[Script, ...]) -> dict[str, jax.Array]:
+def _state_info(
+    key: jax.Array, state: GameState, rules: Rules, scripts: tuple[Script, ...]
+) -> dict[str, jax.Array]:
     ctx = R.turn_context(state, rules)
     legal = jnp.stack([R.legal_actions(ctx, 0), R.legal_actions(ctx, 1)])
     n = state.hp.shape[-1]
     if scripts:
         k0, k1 = jax.random.split(key)
         smoves = jnp.stack(
-            [jnp.stack([s(jax.random.fold_in(k0, i), state, ctx, 0), s(jax.random.fold_in(k1, i), state, ctx, 1)]) for i, s in enumerate(scripts)]
+            [
+                jnp.stack(
+                    [
+                        s(jax.random.fold_in(k0, i), state, ctx, 0),
+                        s(jax.random.fold_in(k1, i), state, ctx, 1),
+                    ]
+                )
+                for i, s in enumerate(scripts)
+            ]
         )
     else:
         smoves = jnp.zeros((0, 2, n), jnp.int32)
@@ -200,7 +214,15 @@ def _state_info(key: jax.Array, state: GameState, rules: Rules, scripts: tuple[S
     # sorted order, each with current position, relative timers, HP and type; dead units zero.
     idx = jnp.argsort(ctx.order, axis=1)
     mat = jnp.stack(
-        [ctx.cx, ctx.cy, state.t_attack - state.time, state.t_move - state.time, state.hp, state.utype], axis=-1
+        [
+            ctx.cx,
+            ctx.cy,
+            state.t_attack - state.time,
+            state.t_move - state.time,
+            state.hp,
+            state.utype,
+        ],
+        axis=-1,
     )
     mat = jnp.where(ctx.alive[..., None], mat, 0)
     mat = jnp.take_along_axis(mat, idx[..., None], axis=1)
@@ -316,7 +338,9 @@ def search_fn(
     pair = (pfns[0], pfns[1])
     use_key = "random" in playout_scripts
 
-    def one(key, vec, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable):
+    def one(
+        key, vec, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable
+    ):
         rules = _rules(walkable, rules_key)
         state = unpack(vec, utype, uid, ltd, ltd2)
         ctx = R.turn_context(state, rules)
@@ -324,7 +348,9 @@ def search_fn(
         stepped = R.apply_actions(state, dataclasses.replace(ctx, acting=acting), actions, rules)
         child = jax.tree.map(lambda a, b: jnp.where(do_step, a, b), stepped, state)
         k_info, k_eval = jax.random.split(key)
-        value, moves, both_dead = _leaf_value(k_eval, child, rules, player, cap, use_ltd, pair, use_key)
+        value, moves, both_dead = _leaf_value(
+            k_eval, child, rules, player, cap, use_ltd, pair, use_key
+        )
         return {
             "child": _pack(child),
             "step_moves": jnp.sum(acting & _is_move(actions), axis=1).astype(jnp.int32),
@@ -334,17 +360,33 @@ def search_fn(
             "both_dead": both_dead,
         }
 
-    def run(key, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable):
+    def run(
+        key, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable
+    ):
         keys = jax.random.split(key, vecs.shape[0])
         return jax.vmap(one, in_axes=(0, 0, 0, 0, 0, 0, None, None, None, None, None, None, None))(
-            keys, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd, ltd2, walkable
+            keys,
+            vecs,
+            actions,
+            mask,
+            do_step,
+            player,
+            cap,
+            use_ltd,
+            utype,
+            uid,
+            ltd,
+            ltd2,
+            walkable,
         )
 
     return jax.jit(run)
 
 
 @functools.lru_cache(maxsize=64)
-def pgs_fn(num_slots: int, batch: int, scripts: tuple[str, ...], turns: int, rules_key: tuple) -> Callable:
+def pgs_fn(
+    num_slots: int, batch: int, scripts: tuple[str, ...], turns: int, rules_key: tuple
+) -> Callable:
     """Jitted ``(key, base [L], assign [K, 2, U], player [K], utype, uid, ltd, ltd2, walkable) ->
     value [K]``: per-unit script playouts (``Game::playIndividualScripts``).
 
@@ -372,7 +414,10 @@ def pgs_fn(num_slots: int, batch: int, scripts: tuple[str, ...], turns: int, rul
             ctx = R.turn_context(s, rules)
             keys = jax.random.split(sub, 2 * len(fns)) if use_key else [sub] * (2 * len(fns))
             per_script = jnp.stack(
-                [jnp.stack([f(keys[2 * i], s, ctx, 0), f(keys[2 * i + 1], s, ctx, 1)]) for i, f in enumerate(fns)]
+                [
+                    jnp.stack([f(keys[2 * i], s, ctx, 0), f(keys[2 * i + 1], s, ctx, 1)])
+                    for i, f in enumerate(fns)
+                ]
             )  # [S, 2, U]
             acts = jnp.take_along_axis(per_script, assign[None], axis=0)[0]
             return R.apply_actions(s, ctx, acts, rules), k + 1, kk

@@ -27,7 +27,9 @@ import numpy as np
 from hybridmarl.engine.rules import ATTACK_BASE, MOVE_ACTIONS, PASS_ACTION, RELOAD_ACTION
 
 
-def unit_action_lists(legal: np.ndarray, acting: np.ndarray, enemy_order: np.ndarray) -> list[np.ndarray]:
+def unit_action_lists(
+    legal: np.ndarray, acting: np.ndarray, enemy_order: np.ndarray
+) -> list[np.ndarray]:
     """Per acting unit (slot order), its legal action codes in SparCraft's generation order.
 
     ``legal``: bool [U, 6 + U]; ``acting``: bool [U]; ``enemy_order``: int [U] sort keys of the

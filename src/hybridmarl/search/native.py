@@ -29,7 +29,9 @@ def pack_state_host(state: GameState) -> tuple[np.ndarray, K.Consts]:
     """``kernels.pack_state`` on the host: the packed vector and constants of one state."""
     parts = [np.asarray(getattr(state, f), np.int32).reshape(-1) for f in K.DYNAMIC_FIELDS]
     prev = np.asarray(state.prev_hp_sum, np.int32).reshape(-1)
-    scalars = np.array([int(state.time), int(state.turn), int(state.stale), int(prev[0]), int(prev[1])], np.int32)
+    scalars = np.array(
+        [int(state.time), int(state.turn), int(state.stale), int(prev[0]), int(prev[1])], np.int32
+    )
     vec = np.concatenate(parts + [scalars]).astype(np.int32)
     consts = K.Consts(
         utype=_writable(np.asarray(state.utype), np.int32),
@@ -77,11 +79,24 @@ def compile_search_kernels() -> float:
     if not _compiled:
         from hybridmarl.engine.state import UnitSpec, build_state, make_rules
 
-        st = build_state([UnitSpec("Terran_Marine", 0, 100, 100), UnitSpec("Terran_Marine", 1, 140, 100)])
+        st = build_state(
+            [UnitSpec("Terran_Marine", 0, 100, 100), UnitSpec("Terran_Marine", 1, 140, 100)]
+        )
         vec, consts = pack_state_host(st)
         args = NativeArgs(consts, make_rules())
-        search_call(args, vec[None], np.zeros((1, 2, 1), np.int32), np.ones((1, 2), bool), np.ones(1, bool), 0, 2, False,
-                    ("nokdps",), ("nokdps", "nokdps"), 0)
+        search_call(
+            args,
+            vec[None],
+            np.zeros((1, 2, 1), np.int32),
+            np.ones((1, 2), bool),
+            np.ones(1, bool),
+            0,
+            2,
+            False,
+            ("nokdps",),
+            ("nokdps", "nokdps"),
+            0,
+        )
         pgs_call(args, vec, np.zeros((1, 2, 1), np.int32), np.zeros(1, np.int32), ("nokdps",), 2, 0)
         _compiled = True
     return time.perf_counter() - t0
@@ -126,10 +141,38 @@ def search_call(
     pmoves = np.empty(m, np.int32)
     both_dead = np.empty(m, np.bool_)
     search_batch(
-        vecs, _writable(actions, np.int32), _writable(mask, np.bool_), _writable(do_step, np.bool_),
-        np.full(m, player, np.int32), int(cap), bool(use_ltd), args.utype, args.uid, args.ltd_total, args.ltd2_total,
-        args.walkable, codes, int(pcodes[0]), int(pcodes[1]), args.overkill_pass, args.stalemate_limit, int(seed), _chunks(m),
-        child, step_moves, movers, acting, legal, order, scripts, terminal, ev, hash_mat, value, pmoves, both_dead,
+        vecs,
+        _writable(actions, np.int32),
+        _writable(mask, np.bool_),
+        _writable(do_step, np.bool_),
+        np.full(m, player, np.int32),
+        int(cap),
+        bool(use_ltd),
+        args.utype,
+        args.uid,
+        args.ltd_total,
+        args.ltd2_total,
+        args.walkable,
+        codes,
+        int(pcodes[0]),
+        int(pcodes[1]),
+        args.overkill_pass,
+        args.stalemate_limit,
+        int(seed),
+        _chunks(m),
+        child,
+        step_moves,
+        movers,
+        acting,
+        legal,
+        order,
+        scripts,
+        terminal,
+        ev,
+        hash_mat,
+        value,
+        pmoves,
+        both_dead,
     )
     return {
         "child": child,
@@ -165,8 +208,19 @@ def pgs_call(
     m = assign.shape[0]
     out = np.empty(m, np.int32)
     pgs_batch(
-        _writable(vec, np.int32), _writable(assign, np.int32), _writable(player, np.int32), int(turns),
-        args.utype, args.uid, args.ltd2_total, args.walkable, script_codes(scripts), args.overkill_pass,
-        args.stalemate_limit, int(seed), _chunks(m), out,
+        _writable(vec, np.int32),
+        _writable(assign, np.int32),
+        _writable(player, np.int32),
+        int(turns),
+        args.utype,
+        args.uid,
+        args.ltd2_total,
+        args.walkable,
+        script_codes(scripts),
+        args.overkill_pass,
+        args.stalemate_limit,
+        int(seed),
+        _chunks(m),
+        out,
     )
     return out

@@ -79,7 +79,13 @@ class PGSPlayer(SearchPlayer):
         return k + k * k if self._lookahead(num_slots) == 2 else k
 
     def _fn(self, dev: DeviceArgs):
-        return K.pgs_fn(dev.num_slots, self._batch(dev.num_slots), self.scripts, int(self.options["playout_turns"]), dev.rules_key)
+        return K.pgs_fn(
+            dev.num_slots,
+            self._batch(dev.num_slots),
+            self.scripts,
+            int(self.options["playout_turns"]),
+            dev.rules_key,
+        )
 
     def _engine(self, dev: DeviceArgs, stats: SearchStats) -> Engine:
         # Only the root's node info (this portfolio's moves, unit order) comes from the search
@@ -91,10 +97,18 @@ class PGSPlayer(SearchPlayer):
         self._engine(dev, SearchStats()).warmup(root, [1])
         if dev.native is not None:
             return
-        out = self._fn(dev)(self.key(), root, np.zeros((k, 2, dev.num_slots), np.int32), np.zeros(k, np.int32), *dev.args)
+        out = self._fn(dev)(
+            self.key(),
+            root,
+            np.zeros((k, 2, dev.num_slots), np.int32),
+            np.zeros(k, np.int32),
+            *dev.args,
+        )
         jax.block_until_ready(out)
 
-    def _search(self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float) -> np.ndarray:
+    def _search(
+        self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float
+    ) -> np.ndarray:
         o = self.options
         info = self._engine(dev, stats).info(root)
         acting = info["acting"][p]
@@ -121,7 +135,15 @@ class PGSPlayer(SearchPlayer):
             if fn is None:
                 from hybridmarl.search.native import pgs_call
 
-                out = pgs_call(dev.native, root, assign, sides.astype(np.int32), self.scripts, int(o["playout_turns"]), int(self.key()[0]))
+                out = pgs_call(
+                    dev.native,
+                    root,
+                    assign,
+                    sides.astype(np.int32),
+                    self.scripts,
+                    int(o["playout_turns"]),
+                    int(self.key()[0]),
+                )
                 stats.calls += 1
                 stats.extra["playouts_run"] += m
                 return out
@@ -152,7 +174,9 @@ class PGSPlayer(SearchPlayer):
         if lookahead == 2:
             vals = run(seed_assign, sides)
         else:
-            vals = np.concatenate([run(seed_assign[:k], sides[:k]), run(seed_assign[k:], sides[k:])])
+            vals = np.concatenate(
+                [run(seed_assign[:k], sides[:k]), run(seed_assign[k:], sides[k:])]
+            )
         stats.playouts += 2 * k
         current = np.empty((2, n), np.int32)
         current[p, :] = pidx[first_best(vals[:k])]

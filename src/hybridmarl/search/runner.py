@@ -150,7 +150,13 @@ def run_player_battles(
         for i in range(n):
             st = jax.tree.map(lambda a, i=i: a[i], stacked)
             g = play_game_with_players(st, rules, players[0], players[1], seed=seed + i)
-            winner[i], final_time[i], turns[i], ltd2[i], actions[i] = g.winner, g.final_time, g.turns, g.ltd2_eval, g.unit_actions
+            winner[i], final_time[i], turns[i], ltd2[i], actions[i] = (
+                g.winner,
+                g.final_time,
+                g.turns,
+                g.ltd2_eval,
+                g.unit_actions,
+            )
             hp = np.zeros(len(states[i]), np.int64)
             u = uid[i].ravel()
             h = np.maximum(g.hp.ravel(), 0)

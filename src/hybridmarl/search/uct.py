@@ -107,10 +107,14 @@ class UCTPlayer(SearchPlayer):
         return Engine(self, dev, self.info_scripts, self.playout, stats)
 
     def _warmup(self, root: np.ndarray, dev: DeviceArgs) -> None:
-        self._engine(dev, SearchStats()).warmup(root, [1, resolve_batch(self.options["batch"], dev.num_slots)])
+        self._engine(dev, SearchStats()).warmup(
+            root, [1, resolve_batch(self.options["batch"], dev.num_slots)]
+        )
 
     # -- search ------------------------------------------------------------------------------
-    def _search(self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float) -> np.ndarray:
+    def _search(
+        self, root: np.ndarray, dev: DeviceArgs, p: int, stats: SearchStats, t0: float
+    ) -> np.ndarray:
         o = self.options
         n = dev.num_slots
         deadline = deadline_from(t0, o["time_ms"])
@@ -123,7 +127,15 @@ class UCTPlayer(SearchPlayer):
 
         # Root: SparCraft applies the root's (empty) move and finishedMoving on every traversal.
         root_post = noop_finish(root, n)
-        rinfo = engine.run(1, root_post[None], np.zeros((1, 2, n), np.int32), np.zeros((1, 2), bool), np.zeros(1, bool), p, 0)
+        rinfo = engine.run(
+            1,
+            root_post[None],
+            np.zeros((1, 2, n), np.int32),
+            np.zeros((1, 2), bool),
+            np.zeros(1, bool),
+            p,
+            0,
+        )
         root_info = _Info(rinfo["info"], 0, root_post)
         fallback = self._fallback(root_info, p)
         if not root_info["movers"][p] or root_info["terminal"]:
@@ -164,9 +176,18 @@ class UCTPlayer(SearchPlayer):
                 ctype = SOLO
             scripts = inf["scripts"]
             ordered = [scripts[self.info_scripts.index(s), ptm] for s in self.ordering]
-            model = scripts[self.info_scripts.index(self.model), ptm] if (self.model and ptm != p) else None
+            model = (
+                scripts[self.info_scripts.index(self.model), ptm]
+                if (self.model and ptm != p)
+                else None
+            )
             vecs = child_moves(
-                inf["legal"][ptm], inf["acting"][ptm], inf["order"][1 - ptm], ordered, o["max_children"], self.rng,
+                inf["legal"][ptm],
+                inf["acting"][ptm],
+                inf["order"][1 - ptm],
+                ordered,
+                o["max_children"],
+                self.rng,
                 model_move=model,
             )
             kids = []
@@ -264,7 +285,9 @@ class UCTPlayer(SearchPlayer):
                 if time.perf_counter() >= deadline:
                     break
                 continue
-            results = self._evaluate(engine, leaves, parent, player, ntype, move, info, root_post, p, batch, cap, use_ltd)
+            results = self._evaluate(
+                engine, leaves, parent, player, ntype, move, info, root_post, p, batch, cap, use_ltd
+            )
             stats.playouts += len(leaves)
             for j, (leaf, path) in enumerate(leaves):
                 if leaf != 0 and ntype[leaf] != FIRST:
@@ -308,7 +331,21 @@ class UCTPlayer(SearchPlayer):
         legal = root_info["legal"][p]
         return np.where(acting, np.argmax(legal, axis=1), 0).astype(np.int32)
 
-    def _evaluate(self, engine: Engine, leaves, parent, player, ntype, move, info, root_post, p: int, batch: int, cap: int, use_ltd: bool):
+    def _evaluate(
+        self,
+        engine: Engine,
+        leaves,
+        parent,
+        player,
+        ntype,
+        move,
+        info,
+        root_post,
+        p: int,
+        batch: int,
+        cap: int,
+        use_ltd: bool,
+    ):
         """One batched engine call: apply each leaf's move(s) to its parent's state and evaluate."""
         n = engine.dev.num_slots
         m = len(leaves)

@@ -108,7 +108,12 @@ def checkpoint_name(step: int) -> str:
 
 
 def save_checkpoint(
-    run_dir: str | Path, step: int, arrays: dict[str, np.ndarray], meta: dict[str, Any], keep: int = 3, name: str | None = None
+    run_dir: str | Path,
+    step: int,
+    arrays: dict[str, np.ndarray],
+    meta: dict[str, Any],
+    keep: int = 3,
+    name: str | None = None,
 ) -> Path:
     """Write checkpoint ``step`` atomically and prune to the newest ``keep``. Returns its path.
 
@@ -157,7 +162,12 @@ def list_checkpoints(run_dir: str | Path) -> list[Path]:
     found = []
     for p in root.iterdir():
         m = _NAME.match(p.name)
-        if m and p.is_dir() and (p / "meta.json").is_file() and (p / "arrays.safetensors").is_file():
+        if (
+            m
+            and p.is_dir()
+            and (p / "meta.json").is_file()
+            and (p / "arrays.safetensors").is_file()
+        ):
             found.append((int(m.group(1)), p))
     return [p for _, p in sorted(found)]
 
@@ -175,7 +185,9 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
     if which is not None and str(which).strip() == BEST:
         if (best / "meta.json").is_file() and (best / "arrays.safetensors").is_file():
             return best
-        raise CheckpointError(f"{run_dir}: no best checkpoint (it is kept by training with --eval-every > 0)")
+        raise CheckpointError(
+            f"{run_dir}: no best checkpoint (it is kept by training with --eval-every > 0)"
+        )
     if not kept:
         raise CheckpointError(f"{run_dir}: no checkpoint found under {Path(run_dir) / CKPT_DIR}")
     if which is None:
@@ -185,10 +197,14 @@ def find_checkpoint(run_dir: str | Path, which: str | int | None = None) -> Path
     for p in kept:
         if p.name == name:
             return p
-    raise CheckpointError(f"{run_dir}: no checkpoint {which!r} (have: {', '.join(p.name for p in kept)})")
+    raise CheckpointError(
+        f"{run_dir}: no checkpoint {which!r} (have: {', '.join(p.name for p in kept)})"
+    )
 
 
-def load_checkpoint(path: str | Path, prefixes: tuple[str, ...] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+def load_checkpoint(
+    path: str | Path, prefixes: tuple[str, ...] | None = None
+) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """``(arrays, meta)`` of one checkpoint directory; :class:`CheckpointError` (one line naming
     the file) for a missing, unreadable or malformed file. With ``prefixes`` only the arrays
     under them are read (a policy without the replay buffer a DQfD checkpoint carries)."""
@@ -196,16 +212,27 @@ def load_checkpoint(path: str | Path, prefixes: tuple[str, ...] | None = None) -
 
     path = Path(path)
     meta = read_user_json(path / "meta.json", "checkpoint metadata", CheckpointError)
-    arrays_path = check_user_file(path / "arrays.safetensors", "checkpoint arrays", CheckpointError, max_bytes=MAX_ARRAY_FILE_BYTES)
+    arrays_path = check_user_file(
+        path / "arrays.safetensors",
+        "checkpoint arrays",
+        CheckpointError,
+        max_bytes=MAX_ARRAY_FILE_BYTES,
+    )
     try:
         if prefixes is None:
             arrays = load_file(str(arrays_path))
         else:
             with safe_open(str(arrays_path), framework="numpy") as f:
-                wanted = [k for k in f.keys() if any(k == p or k.startswith(p + ".") for p in prefixes)]  # noqa: SIM118
+                # safe_open is not iterable: its keys() is the only way to list them.
+                names = f.keys()
+                wanted = [
+                    k for k in names if any(k == p or k.startswith(p + ".") for p in prefixes)
+                ]
                 arrays = {k: f.get_tensor(k) for k in wanted}
     except Exception as e:  # safetensors raises its own error type for a malformed file
-        raise CheckpointError(f"checkpoint arrays {str(arrays_path)!r}: unreadable ({_one_line(e)})") from None
+        raise CheckpointError(
+            f"checkpoint arrays {str(arrays_path)!r}: unreadable ({_one_line(e)})"
+        ) from None
     if meta.get("format_version") != FORMAT_VERSION:
         raise CheckpointError(
             f"checkpoint {path}: format version {meta.get('format_version')!r}, expected {FORMAT_VERSION}"

@@ -53,7 +53,18 @@ class TaskOptions(Options):
 
     # The compiled learners receive the task itself (and the demonstrator script) next to the
     # config, so the task's fields are not part of the compile key.
-    RUN_ONLY = frozenset({"env", "scenario", "demonstrator", "enemy", "p_arrive", "time_penalty", "max_turns", "setting"})
+    RUN_ONLY = frozenset(
+        {
+            "env",
+            "scenario",
+            "demonstrator",
+            "enemy",
+            "p_arrive",
+            "time_penalty",
+            "max_turns",
+            "setting",
+        }
+    )
 
     env: str = "combat"
     """Environment: 'combat' (SparCraft combat, paper Section 5.1) or 'traffic_junction'
@@ -89,7 +100,18 @@ class TaskOptions(Options):
 class RunOptions(Options):
     """The run: seed, directory, checkpoints and logging."""
 
-    RUN_ONLY = frozenset({"seed", "run_dir", "name", "resume", "checkpoint_every", "keep_checkpoints", "tensorboard", "progress"})
+    RUN_ONLY = frozenset(
+        {
+            "seed",
+            "run_dir",
+            "name",
+            "resume",
+            "checkpoint_every",
+            "keep_checkpoints",
+            "tensorboard",
+            "progress",
+        }
+    )
 
     seed: int = 0
     """Seed of everything random (start states, network initialisation, minibatches)."""
@@ -206,11 +228,23 @@ class TrainConfig:
         env = canonical_env(self.env)
         if env == "combat":
             setting = get_setting(self.setting)
-            enemy = canonical_script("combat", self.enemy) if self.enemy else default_enemy(self.base_demonstrator())
-            return TaskSpec(env=env, scenario=self.scenario, enemy=enemy, max_turns=self.max_turns, setting=setting.name)
+            enemy = (
+                canonical_script("combat", self.enemy)
+                if self.enemy
+                else default_enemy(self.base_demonstrator())
+            )
+            return TaskSpec(
+                env=env,
+                scenario=self.scenario,
+                enemy=enemy,
+                max_turns=self.max_turns,
+                setting=setting.name,
+            )
         setting = check_options(self.setting, p_arrive=self.p_arrive)
         p_arrive = setting.p_arrive if self.p_arrive is None else float(self.p_arrive)
-        return TaskSpec(env=env, p_arrive=p_arrive, time_penalty=self.time_penalty, setting=setting.name)
+        return TaskSpec(
+            env=env, p_arrive=p_arrive, time_penalty=self.time_penalty, setting=setting.name
+        )
 
     def demonstrator_is_dataset(self) -> bool:
         d = self.demonstrator
@@ -301,7 +335,11 @@ def config_from_dict(cls: type, d: dict[str, Any]) -> Any:
 
 @jax.jit
 def _all_finite(tree: Any) -> jax.Array:
-    leaves = [jnp.all(jnp.isfinite(x)) for x in jax.tree.leaves(tree) if jnp.issubdtype(x.dtype, jnp.floating)]
+    leaves = [
+        jnp.all(jnp.isfinite(x))
+        for x in jax.tree.leaves(tree)
+        if jnp.issubdtype(x.dtype, jnp.floating)
+    ]
     return jnp.all(jnp.stack(leaves)) if leaves else jnp.asarray(True)
 
 
@@ -339,8 +377,15 @@ class PeriodicEval:
     (``meta()``/``resume()``), so a resumed run keeps comparing against the same best."""
 
     def __init__(self, cfg: TrainConfig, run_dir: Path, log: Any, episodes: int) -> None:
-        self.every, self.keep_best, self.run_dir, self.log = cfg.eval_every, cfg.keep_best, Path(run_dir), log
-        self.best_key: tuple[float, float] | None = None  # the best checkpoint's own meta has the rest
+        self.every, self.keep_best, self.run_dir, self.log = (
+            cfg.eval_every,
+            cfg.keep_best,
+            Path(run_dir),
+            log,
+        )
+        self.best_key: tuple[float, float] | None = (
+            None  # the best checkpoint's own meta has the rest
+        )
         self._next = self._after(episodes)
 
     def _after(self, episodes: int) -> int | None:
@@ -357,7 +402,9 @@ class PeriodicEval:
             return {}
         return {"best_eval": {"key": list(self.best_key)}}
 
-    def maybe_run(self, episodes: int, evaluate: Any, actor_arrays: Any, meta: dict[str, Any]) -> dict[str, Any] | None:
+    def maybe_run(
+        self, episodes: int, evaluate: Any, actor_arrays: Any, meta: dict[str, Any]
+    ) -> dict[str, Any] | None:
         """Evaluate if due: ``evaluate(seed_offset) -> result``; ``actor_arrays() -> dict`` (the
         arrays named ``actor.*`` that ``evaluate.load_policy`` reads). Returns the result or None."""
         if self._next is None or episodes < self._next:
@@ -371,9 +418,17 @@ class PeriodicEval:
 
             self.best_key = key
             selection = {k: v for k, v in res.items() if isinstance(v, int | float | list)}
-            save_checkpoint(self.run_dir, episodes, actor_arrays(), {**meta, "episodes": episodes, "selection": selection}, name=BEST)
+            save_checkpoint(
+                self.run_dir,
+                episodes,
+                actor_arrays(),
+                {**meta, "episodes": episodes, "selection": selection},
+                name=BEST,
+            )
         scalars = {k: v for k, v in res.items() if isinstance(v, float)}
-        self.log.evals.write([{"episodes": episodes, **scalars, "best": int(improved and self.keep_best)}])
+        self.log.evals.write(
+            [{"episodes": episodes, **scalars, "best": int(improved and self.keep_best)}]
+        )
         self.log.scalars(episodes, scalars, prefix="eval")
         return res
 

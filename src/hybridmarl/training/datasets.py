@@ -101,9 +101,13 @@ def _demonstrators(spec: GradedSpec) -> list[tuple[str, str, float]]:
 def _check(spec: GradedSpec) -> tuple[str, ...]:
     if not spec.scripts:
         raise GradedError("no scripts given")
-    scripts = tuple(canonical_script("combat", s) for s in spec.scripts)  # TaskError names a bad one
+    scripts = tuple(
+        canonical_script("combat", s) for s in spec.scripts
+    )  # TaskError names a bad one
     if any(":" in s for s in scripts):
-        raise GradedError("give scripts without a ':eps' suffix; --noise sets the noisy versions' ε")
+        raise GradedError(
+            "give scripts without a ':eps' suffix; --noise sets the noisy versions' ε"
+        )
     if len(set(scripts)) != len(scripts):
         raise GradedError(f"scripts repeat: {', '.join(scripts)}")
     if not 0.0 <= spec.noise <= 1.0:
@@ -125,7 +129,9 @@ def _switch_policy(task: Task, scripts: tuple[str, ...]):
 
     def act(key: jax.Array, state: Any, which: jax.Array, eps: jax.Array) -> jax.Array:
         k0, k1, k2 = jax.random.split(key, 3)
-        a = jax.lax.switch(which, [lambda k, s, f=f: f(k, s).astype(jnp.int32) for f in fns], k0, state)
+        a = jax.lax.switch(
+            which, [lambda k, s, f=f: f(k, s).astype(jnp.int32) for f in fns], k0, state
+        )
         legal = task.avail(state)
         rnd = jax.random.categorical(k2, jnp.where(legal, 0.0, -jnp.inf), axis=-1).astype(jnp.int32)
         flip = jax.random.uniform(k1, a.shape) < eps
@@ -141,7 +147,9 @@ def _collector(task: Task, scripts: tuple[str, ...], num_envs: int, chunk: int):
 
     def act(carry, key, states, obs, legal):
         which, eps = carry
-        a = jax.vmap(policy, in_axes=(0, 0, None, None))(jax.random.split(key, num_envs), states, which, eps)
+        a = jax.vmap(policy, in_axes=(0, 0, None, None))(
+            jax.random.split(key, num_envs), states, which, eps
+        )
         active = jax.vmap(task.env.agent_active)(states)
         return a, carry, {"obs": obs, "legal": legal, "actions": a, "active": active}
 
@@ -162,13 +170,21 @@ def _evaluator(task: Task, scripts: tuple[str, ...]):
         del obs, legal
         which, eps = variables
         n = int(jax.tree.leaves(states)[0].shape[0])
-        return jax.vmap(policy, in_axes=(0, 0, None, None))(jax.random.split(key, n), states, which, eps)
+        return jax.vmap(policy, in_axes=(0, 0, None, None))(
+            jax.random.split(key, n), states, which, eps
+        )
 
     return play
 
 
 def _record(
-    task: Task, spec: GradedSpec, scripts: tuple[str, ...], which: int, eps: float, seed: int, chunk: int = 64
+    task: Task,
+    spec: GradedSpec,
+    scripts: tuple[str, ...],
+    which: int,
+    eps: float,
+    seed: int,
+    chunk: int = 64,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """``demos.collect``'s recording loop for one demonstrator of the switch policy: the
     dataset's arrays and the metrics of its episodes (``won``, ``terminal_hp_reward``, ...,
@@ -182,7 +198,9 @@ def _record(
     w, e = jnp.int32(which), jnp.float32(eps)
     while got < spec.num_observations:
         pool, out = run(pool, w, e)
-        done_fields, returns, stats = asm.add_fields(_step_fields(out), out["reward"], out["done"], out["stats"])
+        done_fields, returns, stats = asm.add_fields(
+            _step_fields(out), out["reward"], out["done"], out["stats"]
+        )
         if returns.size:
             done_fields["return"] = returns
             parts.append(done_fields)
@@ -198,7 +216,9 @@ def _record(
     return arrays, episodes
 
 
-def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log: Any = print) -> dict[str, Any]:
+def generate_graded(
+    out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log: Any = print
+) -> dict[str, Any]:
     """Measure every demonstrator's W against ``spec.enemy``, record its dataset and write the
     datasets and ``manifest.json`` to ``out_dir``; returns the manifest.
 
@@ -211,7 +231,9 @@ def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log
     Raises :class:`GradedError` or ``TaskError`` (one line) on bad settings.
     """
     scripts = _check(spec)
-    task_spec = TaskSpec(env="combat", scenario=spec.scenario, enemy=spec.enemy, setting=spec.setting)
+    task_spec = TaskSpec(
+        env="combat", scenario=spec.scenario, enemy=spec.enemy, setting=spec.setting
+    )
     task = make_task(task_spec)  # TaskError names a bad scenario, enemy or setting
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -234,7 +256,20 @@ def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log
             "num_actions": task.num_actions,
             "obs_dim": task.obs_dim,
             "num_observations": e["num_observations"],
-            "graded": {k: e[k] for k in ("name", "script", "noise", "rank", "W", "W_ci95", "R", "R_ci95", "eval_battles")},
+            "graded": {
+                k: e[k]
+                for k in (
+                    "name",
+                    "script",
+                    "noise",
+                    "rank",
+                    "W",
+                    "W_ci95",
+                    "R",
+                    "R_ci95",
+                    "eval_battles",
+                )
+            },
         }
         save_dataset(Dataset(arrays=arrays, meta=meta), out / e["file"])
 
@@ -244,7 +279,9 @@ def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log
     if spec.eval_battles > 0:
         for name, script, eps in demonstrators:
             variables = (jnp.int32(scripts.index(script)), jnp.float32(eps))
-            episodes = run_episodes(task, evaluate, variables, jax.random.key(spec.seed), spec.eval_battles)
+            episodes = run_episodes(
+                task, evaluate, variables, jax.random.key(spec.seed), spec.eval_battles
+            )
             evaluated[name] = {"name": name, **summarize(task, episodes)}
         order = sorted(evaluated.values(), key=rank_key)
         for rank, r in enumerate(order, start=1):
@@ -254,7 +291,9 @@ def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log
     pending: dict[str, dict[str, np.ndarray]] = {}  # ranked by their own episodes: saved at the end
     for i, (name, script, eps) in enumerate(demonstrators):
         t0 = time.perf_counter()
-        arrays, episodes = _record(task, spec, scripts, scripts.index(script), eps, spec.seed + 1 + i)
+        arrays, episodes = _record(
+            task, spec, scripts, scripts.index(script), eps, spec.seed + 1 + i
+        )
         own = summarize(task, episodes)
         result = evaluated.get(name, own)
         e = {
@@ -281,8 +320,10 @@ def generate_graded(out_dir: str | Path, spec: GradedSpec = GradedSpec(), *, log
             save(e, arrays)
         else:
             pending[name] = arrays
-        log(f"{name}: W {e['W']:.2f} [{e['W_ci95'][0]:.2f}, {e['W_ci95'][1]:.2f}]  R {e['R']:+.3f}  "
-            f"({e['episodes']} episodes, {time.perf_counter() - t0:.0f} s)")
+        log(
+            f"{name}: W {e['W']:.2f} [{e['W_ci95'][0]:.2f}, {e['W_ci95'][1]:.2f}]  R {e['R']:+.3f}  "
+            f"({e['episodes']} episodes, {time.perf_counter() - t0:.0f} s)"
+        )
     entries.sort(key=rank_key)
     for rank, e in enumerate(entries, start=1):
         if e["name"] in pending:
@@ -306,11 +347,15 @@ def load_manifest(folder: str | Path) -> dict[str, Any]:
     try:
         doc = json.loads(path.read_text())
     except FileNotFoundError:
-        raise GradedError(f"{path}: no such file (generate the set with experiments/graded_datasets.py)") from None
+        raise GradedError(
+            f"{path}: no such file (generate the set with experiments/graded_datasets.py)"
+        ) from None
     except json.JSONDecodeError as e:
         raise GradedError(f"{path}: not JSON ({e.msg}, line {e.lineno})") from None
     if not isinstance(doc, dict) or doc.get("format") != MANIFEST_FORMAT:
-        raise GradedError(f"{path}: not a graded dataset manifest (format {doc.get('format') if isinstance(doc, dict) else None!r})")
+        raise GradedError(
+            f"{path}: not a graded dataset manifest (format {doc.get('format') if isinstance(doc, dict) else None!r})"
+        )
     return doc
 
 

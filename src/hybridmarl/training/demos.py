@@ -104,7 +104,11 @@ def collect(
     :func:`_native_collector`); everything else on the JAX engine."""
     task = make_task(spec)
     native = _native_collect(task, demonstrator, engine)
-    run = _native_collector(task, demonstrator, num_envs, chunk) if native else _collector(task, demonstrator, num_envs, chunk)
+    run = (
+        _native_collector(task, demonstrator, num_envs, chunk)
+        if native
+        else _collector(task, demonstrator, num_envs, chunk)
+    )
     pool = new_pool(task, jax.random.key(seed), num_envs)
     asm = EpisodeAssembler(num_envs, gamma)
     parts: list[dict[str, np.ndarray]] = []
@@ -186,7 +190,9 @@ def _native_collector(task: Task, demonstrator: str, num_envs: int, chunk: int):
     from hybridmarl.training.rollout_native import NativeScriptRollout
 
     rollout = NativeScriptRollout(task, demonstrator, num_envs=num_envs, steps=chunk)
-    per_state = jax.vmap(jax.vmap(lambda s: (task.observe(s), task.avail(s), task.env.agent_active(s))))
+    per_state = jax.vmap(
+        jax.vmap(lambda s: (task.observe(s), task.avail(s), task.env.agent_active(s)))
+    )
     views = jax.jit(per_state)
 
     def run(pool):
@@ -249,11 +255,15 @@ def load_dataset(path: str | Path, *, expect: Task | None = None) -> Dataset:
             header = f.metadata() or {}
             arrays = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
     except Exception as e:  # safetensors raises its own error types
-        raise DatasetError(f"{path}: not a safetensors file ({str(e).splitlines()[0] if str(e) else type(e).__name__})") from None
+        raise DatasetError(
+            f"{path}: not a safetensors file ({str(e).splitlines()[0] if str(e) else type(e).__name__})"
+        ) from None
     try:
         meta = json.loads(header.get("hybridmarl", ""))
     except json.JSONDecodeError:
-        raise DatasetError(f"{path}: missing or unreadable 'hybridmarl' metadata (not a hybridmarl demonstration dataset)") from None
+        raise DatasetError(
+            f"{path}: missing or unreadable 'hybridmarl' metadata (not a hybridmarl demonstration dataset)"
+        ) from None
     ds = Dataset(arrays=arrays, meta=meta)
     problem = validate(ds, expect=expect)
     if problem:
@@ -319,7 +329,11 @@ def validate(ds: Dataset, *, expect: Task | None = None) -> str | None:
         return f"agent {g} at record {r} has no legal action"
     if np.any(np.diff(a["episode"]) < 0) or a["episode"].min() < 0:
         return "episode ids must be non-negative and non-decreasing"
-    if not (np.isfinite(a["obs"]).all() and np.isfinite(a["reward"]).all() and np.isfinite(a["return"]).all()):
+    if not (
+        np.isfinite(a["obs"]).all()
+        and np.isfinite(a["reward"]).all()
+        and np.isfinite(a["return"]).all()
+    ):
         return "non-finite values in obs, reward or return"
     if expect is not None:
         if (expect.num_agents, expect.num_actions, expect.obs_dim) != (n, na, d):
@@ -408,12 +422,18 @@ def _bc_fit_fn(spec: tuple[tuple[int, ...], int], optimizer: tuple[str, float], 
     return jax.jit(fit, static_argnums=(5,))
 
 
-def bc_accuracy(actor: nets.NetState, module: nets.MLP, rows: tuple[np.ndarray, np.ndarray, np.ndarray]) -> float:
+def bc_accuracy(
+    actor: nets.NetState, module: nets.MLP, rows: tuple[np.ndarray, np.ndarray, np.ndarray]
+) -> float:
     """Fraction of choice records where the clone's legal argmax equals the demonstrated action."""
     obs, legal, acts = rows
     if obs.shape[0] == 0:
         return float("nan")
-    pred = _predict_fn(nets.module_spec(module))({"params": actor.params, "batch_stats": actor.batch_stats}, jnp.asarray(obs), jnp.asarray(legal))
+    pred = _predict_fn(nets.module_spec(module))(
+        {"params": actor.params, "batch_stats": actor.batch_stats},
+        jnp.asarray(obs),
+        jnp.asarray(legal),
+    )
     return float(np.mean(np.asarray(pred) == acts))
 
 

@@ -64,7 +64,9 @@ def states_batch(states: Any) -> int:
     return int(jax.tree.leaves(states)[0].shape[0])
 
 
-def run_episodes(task: Task, policy, variables: Any, key: jax.Array, n: int) -> dict[str, np.ndarray]:
+def run_episodes(
+    task: Task, policy, variables: Any, key: jax.Array, n: int
+) -> dict[str, np.ndarray]:
     """Play ``n`` episodes in parallel to their ends; per-episode metrics (``task.metric_names``
     plus ``return``, the undiscounted sum of rewards, and ``steps``)."""
     fn = _episodes_fn(task, policy, n)
@@ -99,7 +101,15 @@ def _episodes_fn(task: Task, policy, n: int):
             obs = sel(obs2, obs)
             return states, obs, key, finished | d, stats, ret, steps
 
-        init = (states, obs, k_run, jnp.zeros((n,), bool), zeros, jnp.zeros((n,), jnp.float32), jnp.zeros((n,), jnp.int32))
+        init = (
+            states,
+            obs,
+            k_run,
+            jnp.zeros((n,), bool),
+            zeros,
+            jnp.zeros((n,), jnp.float32),
+            jnp.zeros((n,), jnp.int32),
+        )
         _, _, _, _, stats, ret, steps = jax.lax.while_loop(cond, body, init)
         return {**stats, "return": ret, "steps": steps}
 
@@ -122,7 +132,9 @@ def _native_script_eval(task: Task, script: str, engine: str) -> bool:
     return all(name in SCRIPT_CODES and name != "random" for name in names)
 
 
-def run_scripted_episodes_native(task: Task, script: str, key: jax.Array, n: int) -> dict[str, np.ndarray]:
+def run_scripted_episodes_native(
+    task: Task, script: str, key: jax.Array, n: int
+) -> dict[str, np.ndarray]:
     """``run_episodes`` of a combat script on the native engine: the same start states (the
     env's own reset, with the same keys), the episodes played by
     ``envs.combat.native.play_scripted_episodes``."""
@@ -138,14 +150,35 @@ def run_scripted_episodes_native(task: Task, script: str, key: jax.Array, n: int
     won, lost = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
     steps, ret, terminal = np.zeros(n, np.int32), np.zeros(n, np.float32), np.zeros(n, np.float32)
     play_scripted_episodes(
-        batch["fields"], batch["time"], batch["turn"], batch["stale"], batch["prev_hp_sum"], batch["init_hp0"],
-        np.array(rules.walkable, np.bool_, order="C", copy=True), SCRIPT_CODES[script], SCRIPT_CODES[env.enemy_name],
-        env.num_agents, env.num_actions, rules.overkill == "pass", rules.stalemate_limit, rules.max_turns, 0,
-        max(1, min(n, numba.get_num_threads() * 16)), won, lost, steps, ret, terminal,
+        batch["fields"],
+        batch["time"],
+        batch["turn"],
+        batch["stale"],
+        batch["prev_hp_sum"],
+        batch["init_hp0"],
+        np.array(rules.walkable, np.bool_, order="C", copy=True),
+        SCRIPT_CODES[script],
+        SCRIPT_CODES[env.enemy_name],
+        env.num_agents,
+        env.num_actions,
+        rules.overkill == "pass",
+        rules.stalemate_limit,
+        rules.max_turns,
+        0,
+        max(1, min(n, numba.get_num_threads() * 16)),
+        won,
+        lost,
+        steps,
+        ret,
+        terminal,
     )
     return {
-        "won": won.astype(np.float32), "lost": lost.astype(np.float32), "draw": (~won & ~lost).astype(np.float32),
-        "terminal_hp_reward": terminal, "return": ret, "steps": steps,
+        "won": won.astype(np.float32),
+        "lost": lost.astype(np.float32),
+        "draw": (~won & ~lost).astype(np.float32),
+        "terminal_hp_reward": terminal,
+        "return": ret,
+        "steps": steps,
     }
 
 
@@ -171,7 +204,16 @@ class Policy:
     checkpoint's metadata); 'weights' ('last': the actor, or 'average': its weight average).
     """
 
-    def __init__(self, run_dir: Path, config: dict[str, Any], spec: TaskSpec, module: nets.MLP, variables: dict, meta: dict, weights: str = "last"):
+    def __init__(
+        self,
+        run_dir: Path,
+        config: dict[str, Any],
+        spec: TaskSpec,
+        module: nets.MLP,
+        variables: dict,
+        meta: dict,
+        weights: str = "last",
+    ):
         self.run_dir = run_dir
         self.config = config
         self.spec = spec
@@ -182,7 +224,11 @@ class Policy:
 
     @property
     def demonstrator(self) -> str:
-        return str(self.config.get("config", {}).get("demonstrator_name", self.config.get("config", {}).get("demonstrator", "")))
+        return str(
+            self.config.get("config", {}).get(
+                "demonstrator_name", self.config.get("config", {}).get("demonstrator", "")
+            )
+        )
 
     def predict(self, obs: Any, legal: Any) -> np.ndarray:
         """Actions for observations 'obs' [..., obs_dim] and legal-action masks 'legal'
@@ -192,9 +238,13 @@ class Policy:
         obs = np.asarray(obs, np.float32)
         legal = np.asarray(legal, bool)
         if obs.shape[:-1] != legal.shape[:-1]:
-            raise ValueError(f"obs {obs.shape} and legal {legal.shape} differ in their leading axes")
+            raise ValueError(
+                f"obs {obs.shape} and legal {legal.shape} differ in their leading axes"
+            )
         lead = obs.shape[:-1]
-        flat = _predict_fn(nets.module_spec(self.module))(self.variables, obs.reshape((-1, obs.shape[-1])), legal.reshape((-1, legal.shape[-1])))
+        flat = _predict_fn(nets.module_spec(self.module))(
+            self.variables, obs.reshape((-1, obs.shape[-1])), legal.reshape((-1, legal.shape[-1]))
+        )
         return np.asarray(flat).reshape(lead)
 
 
@@ -210,14 +260,18 @@ def _predict_fn(spec: tuple[tuple[int, ...], int]):
 POLICY_CHOICES = ("auto", "average", "last")
 
 
-def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, weights: str = "auto") -> Policy:
+def load_policy(
+    run_dir: str | Path, checkpoint: str | int | None = None, weights: str = "auto"
+) -> Policy:
     """The policy of one checkpoint of a run (config.json says how it was built): the newest,
     or 'checkpoint', given as its episode count (700), its directory name (ckpt_000000700)
     under run_dir/checkpoints, or 'best'. 'weights' (see 'POLICY_CHOICES') picks the actor or
     its weight average (hybrid actor_average_from); by default the average where the run keeps
     one. Raises 'CheckpointError' (a 'UserError') for a missing or unreadable run."""
     if weights not in POLICY_CHOICES:
-        raise CheckpointError(f"weights must be one of {', '.join(POLICY_CHOICES)}, not {weights!r}")
+        raise CheckpointError(
+            f"weights must be one of {', '.join(POLICY_CHOICES)}, not {weights!r}"
+        )
     from hybridmarl.training.rundir import non_finite_array, read_run_config
 
     run_dir = Path(run_dir)
@@ -228,23 +282,39 @@ def load_policy(run_dir: str | Path, checkpoint: str | int | None = None, weight
     task = make_task(spec)
     hidden = tuple(doc["config"].get("actor_hidden", nets.ACTOR_HIDDEN))
     module = nets.actor_module(task.num_actions, hidden)
-    template = jax.eval_shape(lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False))
+    template = jax.eval_shape(
+        lambda: module.init(jax.random.key(0), jnp.zeros((2, task.obs_dim)), train=False)
+    )
     # A run with weight averaging (hybrid actor_average_from) exports the average.
     has_average = any(k.startswith(AVERAGE_PREFIX + ".") for k in arrays)
     if weights == "average" and not has_average:
-        raise CheckpointError(f"{ck}: holds no weight average (the run was trained without --actor-average-from, or before its first average)")
+        raise CheckpointError(
+            f"{ck}: holds no weight average (the run was trained without --actor-average-from, or before its first average)"
+        )
     prefix = AVERAGE_PREFIX if has_average and weights != "last" else "actor"
     bad = non_finite_array(arrays, (prefix,))
     if bad is not None:
-        raise CheckpointError(f"{ck}: array {bad!r} holds NaN/inf (the run diverged); evaluate an earlier --checkpoint")
+        raise CheckpointError(
+            f"{ck}: array {bad!r} holds NaN/inf (the run diverged); evaluate an earlier --checkpoint"
+        )
     try:
         variables = {
             "params": unflatten_named(template["params"], subtree(arrays, f"{prefix}.params")),
-            "batch_stats": unflatten_named(template["batch_stats"], subtree(arrays, f"{prefix}.batch_stats")),
+            "batch_stats": unflatten_named(
+                template["batch_stats"], subtree(arrays, f"{prefix}.batch_stats")
+            ),
         }
     except (KeyError, ValueError) as e:
         raise CheckpointError(f"{ck}: actor does not fit the run's config ({e})") from None
-    return Policy(run_dir, doc, spec, module, variables, meta, "average" if prefix == AVERAGE_PREFIX else "last")
+    return Policy(
+        run_dir,
+        doc,
+        spec,
+        module,
+        variables,
+        meta,
+        "average" if prefix == AVERAGE_PREFIX else "last",
+    )
 
 
 def evaluate_best(run_dir: str | Path, evaluate: Any) -> dict[str, Any] | None:
@@ -280,11 +350,19 @@ def mirrored_enemy(bundle: Policy, spec: TaskSpec):
             f"the enemy policy was trained with {src.num_agents} agents and {src.num_actions} actions; "
             f"as the enemy of {spec.scenario} it needs {mirror.num_agents} and {mirror.num_actions}"
         )
-    return learned_enemy(me.env, functools.partial(nets.actor_actions, bundle.module), bundle.variables)
+    return learned_enemy(
+        me.env, functools.partial(nets.actor_actions, bundle.module), bundle.variables
+    )
 
 
 def evaluate_task(
-    task: Task, module: nets.MLP | None, variables: Any, *, n: int = 100, seed: int = 0, script: str | None = None,
+    task: Task,
+    module: nets.MLP | None,
+    variables: Any,
+    *,
+    n: int = 100,
+    seed: int = 0,
+    script: str | None = None,
     engine: str = "auto",
 ) -> dict[str, Any]:
     """Run the protocol for an actor (``module``/``variables``) or a ``script``; summary dict.
@@ -312,7 +390,9 @@ def is_search_spec(spec: str) -> bool:
     return spec.split(":", 1)[0].strip().lower().replace("_", "-") in _NAME_ALIASES
 
 
-def evaluate_player(task: Task, player: str, *, n: int = 100, seed: int = 0, progress: bool = False) -> dict[str, Any]:
+def evaluate_player(
+    task: Task, player: str, *, n: int = 100, seed: int = 0, progress: bool = False
+) -> dict[str, Any]:
     """The protocol for any engine player as our side of a combat task, above all the search
     players of Table 1 (``uct:script=attack-closest,playout1=attack-weakest`` is UCT_c as
     ``hybridmarl reproduce`` plays it, ``abcd:...`` A-B_c, ``pgs:portfolio=...`` "Profile"). The start states are exactly those of ``evaluate_task`` with
@@ -364,7 +444,9 @@ def play_search_battles(
     k_reset, _ = jax.random.split(jax.random.key(seed))
     _, states = jax.jit(jax.vmap(task.reset))(jax.random.split(k_reset, n))
     ours, enemy = make_player(player), make_player(task.spec.enemy)
-    ep: dict[str, list[float]] = {k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")}
+    ep: dict[str, list[float]] = {
+        k: [] for k in ("won", "lost", "draw", "terminal_hp_reward", "steps")
+    }
     decisions: list[Any] = []
     for i in range(first, n):
         start = jax.tree.map(lambda a, i=i: a[i], states)

@@ -58,11 +58,15 @@ class CsvLog:
 
         data = read_user_bytes(self.path, "run log", LogFileError)
         if b"\0" in data:
-            raise LogFileError(f"run log {str(self.path)!r} is a binary file, not CSV (remove it to start a new log)")
+            raise LogFileError(
+                f"run log {str(self.path)!r} is a binary file, not CSV (remove it to start a new log)"
+            )
         try:
             table = list(csv.reader(io.StringIO(data.decode("utf-8"), newline="")))
         except (UnicodeDecodeError, csv.Error) as e:
-            raise LogFileError(f"run log {str(self.path)!r} is not a CSV file ({e}; remove it to start a new log)") from None
+            raise LogFileError(
+                f"run log {str(self.path)!r} is not a CSV file ({e}; remove it to start a new log)"
+            ) from None
         return (table[0], table[1:]) if table else ([], [])
 
     def truncate_to(self, rows: int | None, step: float) -> None:
@@ -139,7 +143,9 @@ class RunLogger:
                 import tensorboardX  # noqa: F401
             except ImportError:
                 # An optional extra: the run goes on with its CSV logs.
-                print("TensorBoard logging is off: tensorboardX is not installed (pip install 'hybridmarl[tensorboard]')")
+                print(
+                    "TensorBoard logging is off: tensorboardX is not installed (pip install 'hybridmarl[tensorboard]')"
+                )
             else:
                 self._tensorboard = True
 
@@ -151,7 +157,9 @@ class RunLogger:
         if self._tb is None and self._tensorboard:
             from tensorboardX import SummaryWriter
 
-            self._tb = SummaryWriter(str(self.run_dir / "tb"), flush_secs=30, purge_step=self._purge_step)
+            self._tb = SummaryWriter(
+                str(self.run_dir / "tb"), flush_secs=30, purge_step=self._purge_step
+            )
         return self._tb
 
     def write_config(self, doc: dict[str, Any]) -> None:
@@ -159,7 +167,9 @@ class RunLogger:
         if self.tb is not None:
             import json
 
-            self.tb.add_text("config", "```\n" + json.dumps(doc, indent=2, sort_keys=True) + "\n```", 0)
+            self.tb.add_text(
+                "config", "```\n" + json.dumps(doc, indent=2, sort_keys=True) + "\n```", 0
+            )
             for k, v in _flat(doc.get("config", {})).items():
                 self.tb.add_text(f"hparams/{k}", str(v), 0)
 
@@ -224,7 +234,15 @@ def recent_status(recent: dict[str, float], primary: str, secondary: str) -> str
 class Progress:
     """A rich progress bar on a terminal; a plain line every ``every_s`` seconds otherwise."""
 
-    def __init__(self, total: int, description: str, *, enabled: bool = True, every_s: float = 30.0, start: int = 0) -> None:
+    def __init__(
+        self,
+        total: int,
+        description: str,
+        *,
+        enabled: bool = True,
+        every_s: float = 30.0,
+        start: int = 0,
+    ) -> None:
         self.total = total
         self.enabled = enabled
         self.every_s = every_s
@@ -272,7 +290,11 @@ class Progress:
         if now - self._last >= self.every_s or completed >= self.total:
             self._last = now
             el = now - self._t0
-            print(f"[{self.description}] {completed}/{self.total} episodes  {el:7.0f}s  {status}", file=sys.stderr, flush=True)
+            print(
+                f"[{self.description}] {completed}/{self.total} episodes  {el:7.0f}s  {status}",
+                file=sys.stderr,
+                flush=True,
+            )
 
     def close(self) -> None:
         if self._bar is not None:

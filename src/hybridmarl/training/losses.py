@@ -100,7 +100,9 @@ def legal_max(q: jax.Array, legal: jax.Array) -> jax.Array:
     return jnp.where(jnp.any(legal, axis=-1), m, 0.0)
 
 
-def double_q_bootstrap(q_online_next: jax.Array, q_target_next: jax.Array, legal_next: jax.Array) -> jax.Array:
+def double_q_bootstrap(
+    q_online_next: jax.Array, q_target_next: jax.Array, legal_next: jax.Array
+) -> jax.Array:
     """Double DQN: ``Q_target(s', argmax_{a legal} Q_online(s', a))`` (0 where nothing is legal)."""
     a = jnp.argmax(jnp.where(legal_next, q_online_next, -jnp.inf), axis=-1)
     v = jnp.take_along_axis(q_target_next, a[..., None], axis=-1)[..., 0]
@@ -113,7 +115,9 @@ def huber(x: jax.Array, delta: float = 1.0) -> jax.Array:
     return jnp.where(a <= delta, 0.5 * x * x, delta * (a - 0.5 * delta))
 
 
-def large_margin_loss(q: jax.Array, expert: jax.Array, legal: jax.Array, margin: float | jax.Array = 0.8) -> jax.Array:
+def large_margin_loss(
+    q: jax.Array, expert: jax.Array, legal: jax.Array, margin: float | jax.Array = 0.8
+) -> jax.Array:
     """DQfD's J_E per sample: ``max_{a legal} [Q(s, a) + l(a_E, a)] - Q(s, a_E)``, ``l`` = ``margin``
     for ``a != a_E`` and 0 for ``a_E`` (>= 0; 0 iff ``a_E`` beats every other legal action by
     the margin)."""
@@ -126,7 +130,9 @@ def large_margin_loss(q: jax.Array, expert: jax.Array, legal: jax.Array, margin:
 
 def l2_penalty(params) -> jax.Array:
     """``sum w^2`` over every parameter array (J_L2)."""
-    return sum((jnp.sum(jnp.square(x)) for x in jax.tree.leaves(params)), jnp.zeros((), jnp.float32))
+    return sum(
+        (jnp.sum(jnp.square(x)) for x in jax.tree.leaves(params)), jnp.zeros((), jnp.float32)
+    )
 
 
 def nstep_returns(
@@ -186,7 +192,9 @@ def linear_decay(weight: float, episodes: float, decay_episodes: int) -> float:
     return float(weight) * max(0.0, 1.0 - float(episodes) / float(decay_episodes))
 
 
-def greedy_agreement(q: jax.Array, legal: jax.Array, expert: jax.Array, choice: jax.Array) -> tuple[jax.Array, jax.Array]:
+def greedy_agreement(
+    q: jax.Array, legal: jax.Array, expert: jax.Array, choice: jax.Array
+) -> tuple[jax.Array, jax.Array]:
     """How often the legal greedy action equals the demonstrator's: ``(matches, count)`` over
     the samples where ``choice`` (an agent in play with at least two legal actions). Ties
     break toward the lowest action index, as ``argmax`` does when the policy plays."""

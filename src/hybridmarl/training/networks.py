@@ -45,7 +45,9 @@ class MLP(nn.Module):
     out: int
 
     @nn.compact
-    def __call__(self, x: jax.Array, train: bool = False, mask: jax.Array | None = None) -> jax.Array:
+    def __call__(
+        self, x: jax.Array, train: bool = False, mask: jax.Array | None = None
+    ) -> jax.Array:
         x = x.reshape((x.shape[0], -1)).astype(jnp.float32)
         bn_mask = None if mask is None else mask[:, None]
         for width in self.hidden:
@@ -82,7 +84,9 @@ def make_optimizer(name: str, lr: float) -> optax.GradientTransformation:
     raise ValueError(f"unknown optimizer {name!r} (known: sgd, adam)")
 
 
-def init_net(module: MLP, key: jax.Array, in_dim: int, tx: optax.GradientTransformation) -> NetState:
+def init_net(
+    module: MLP, key: jax.Array, in_dim: int, tx: optax.GradientTransformation
+) -> NetState:
     variables = init_variables(module, key, in_dim)
     params = variables["params"]
     return NetState(
@@ -93,17 +97,28 @@ def init_net(module: MLP, key: jax.Array, in_dim: int, tx: optax.GradientTransfo
     )
 
 
-def sgd_step(net: NetState, tx: optax.GradientTransformation, loss_fn: Callable[[Any, Any], tuple[jax.Array, tuple[Any, Any]]],
-             lr_scale: ArrayLike | None = None) -> tuple[NetState, jax.Array, Any]:
+def sgd_step(
+    net: NetState,
+    tx: optax.GradientTransformation,
+    loss_fn: Callable[[Any, Any], tuple[jax.Array, tuple[Any, Any]]],
+    lr_scale: ArrayLike | None = None,
+) -> tuple[NetState, jax.Array, Any]:
     """One optimiser step of ``net``: ``loss_fn(params, batch_stats) -> (loss, (new_batch_stats,
     extra))``; returns ``(net', loss, extra)`` (the one place every learner updates a network).
     ``lr_scale`` multiplies the step: for SGD and Adam that is the learning rate times
     ``lr_scale``, with the optimiser's state unchanged in shape (a schedule set from the host)."""
-    (loss, (bs, extra)), grads = jax.value_and_grad(loss_fn, has_aux=True)(net.params, net.batch_stats)
+    (loss, (bs, extra)), grads = jax.value_and_grad(loss_fn, has_aux=True)(
+        net.params, net.batch_stats
+    )
     updates, opt = tx.update(grads, net.opt_state, net.params)
     if lr_scale is not None:
         updates = jax.tree.map(lambda u: u * lr_scale, updates)
-    net = net.replace(params=optax.apply_updates(net.params, updates), batch_stats=bs, opt_state=opt, step=net.step + 1)
+    net = net.replace(
+        params=optax.apply_updates(net.params, updates),
+        batch_stats=bs,
+        opt_state=opt,
+        step=net.step + 1,
+    )
     return net, loss, extra
 
 
@@ -132,7 +147,11 @@ def apply_train(
 ) -> tuple[jax.Array, Any]:
     """Train mode: minibatch statistics over the rows in ``mask``; returns (out, new batch_stats)."""
     out, updates = module.apply(
-        {"params": params, "batch_stats": batch_stats}, x, train=True, mask=mask, mutable=["batch_stats"]
+        {"params": params, "batch_stats": batch_stats},
+        x,
+        train=True,
+        mask=mask,
+        mutable=["batch_stats"],
     )
     return out, updates["batch_stats"]
 

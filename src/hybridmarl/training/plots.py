@@ -36,7 +36,9 @@ def training_curve(
         import matplotlib
     except ImportError:
         # An optional extra: the curve's data is in episodes.csv either way.
-        print(f"no {Path(path).name}: matplotlib is not installed (pip install 'hybridmarl[plots]')")
+        print(
+            f"no {Path(path).name}: matplotlib is not installed (pip install 'hybridmarl[plots]')"
+        )
         return None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -44,8 +46,16 @@ def training_curve(
     y = forward_mean(v, window)
     x = np.arange(1, y.size + 1)
     fig, ax = plt.subplots(figsize=(6, 4), dpi=120)
-    label = {"terminal_hp_reward": "terminal HP reward", "return": "episode return"}.get(metric, metric)
-    ax.plot(x, y, color="tab:red", lw=1.5, label=f"ours (mean of the following {min(window, v.size)} episodes)")
+    label = {"terminal_hp_reward": "terminal HP reward", "return": "episode return"}.get(
+        metric, metric
+    )
+    ax.plot(
+        x,
+        y,
+        color="tab:red",
+        lw=1.5,
+        label=f"ours (mean of the following {min(window, v.size)} episodes)",
+    )
     if baseline is not None and np.isfinite(baseline):
         ax.axhline(baseline, color="tab:gray", ls="--", lw=1, label="demonstrator")
     ax.set_xlabel("training episodes")

@@ -82,7 +82,9 @@ def pool_steps(
         key, k_act, k_step, k_reset = jax.random.split(key, 4)
         legal = jax.vmap(task.avail)(pool.states)
         actions, carry, aux = act(carry, k_act, pool.states, pool.obs, legal)
-        obs2, s2, r, d, info = jax.vmap(task.step)(jax.random.split(k_step, b), pool.states, actions)
+        obs2, s2, r, d, info = jax.vmap(task.step)(
+            jax.random.split(k_step, b), pool.states, actions
+        )
         stats = jax.vmap(task.episode_stats)(s2, info)
 
         def reset_done(args: tuple) -> tuple:
@@ -144,7 +146,9 @@ class EpisodeAssembler:
         for t, s in zip(*np.nonzero(done), strict=True):  # row-major: by step, then by slot
             a = start[s]
             pieces = self.pieces[s] + [{k: fields[k][a : t + 1, s] for k in names}]
-            rewards = np.concatenate(self.piece_rewards[s] + [reward[a : t + 1, s]]).astype(np.float64)
+            rewards = np.concatenate(self.piece_rewards[s] + [reward[a : t + 1, s]]).astype(
+                np.float64
+            )
             episode = {k: np.concatenate([p[k] for p in pieces]) for k in names}
             episode["t"] = np.arange(rewards.shape[0], dtype=np.int32)
             episode["episode_key"] = np.full(rewards.shape[0], self.finished, np.int64)
@@ -163,7 +167,9 @@ class EpisodeAssembler:
                 self.pieces[s].append({k: np.array(fields[k][a:, s]) for k in names})
                 self.piece_rewards[s].append(np.array(reward[a:, s]))
         if episodes:
-            out = {k: np.concatenate([e[k] for e in episodes]) for k in names + ["t", "episode_key"]}
+            out = {
+                k: np.concatenate([e[k] for e in episodes]) for k in names + ["t", "episode_key"]
+            }
         else:
             out = {k: np.zeros((0,) + fields[k].shape[2:], fields[k].dtype) for k in fields}
             out["t"] = np.zeros((0,), np.int32)
@@ -184,7 +190,9 @@ class EpisodeAssembler:
                 rows.append(piece)
         out = {
             "slot": np.concatenate(slots) if slots else np.zeros((0,), np.int32),
-            "reward": np.concatenate(rewards).astype(np.float32) if rewards else np.zeros((0,), np.float32),
+            "reward": np.concatenate(rewards).astype(np.float32)
+            if rewards
+            else np.zeros((0,), np.float32),
             "finished": np.asarray(self.finished, np.int64),
         }
         if rows:
@@ -218,7 +226,9 @@ class ReplayBuffer:
 
     def add(self, states: dict[str, np.ndarray], returns: np.ndarray) -> None:
         """Append rows (``states``: flattened names, with or without a ``state.`` prefix)."""
-        states = {(k[len("state.") :] if k.startswith("state.") else k): v for k, v in states.items()}
+        states = {
+            (k[len("state.") :] if k.startswith("state.") else k): v for k, v in states.items()
+        }
         m = int(returns.shape[0])
         if m == 0:
             return
@@ -249,10 +259,10 @@ class ReplayBuffer:
         for k in self.states:
             a = arrays["state." + k]
             if a.shape != self.states[k].shape:
-                raise ValueError(f"buffer array {k!r} has shape {a.shape}, expected {self.states[k].shape}")
+                raise ValueError(
+                    f"buffer array {k!r} has shape {a.shape}, expected {self.states[k].shape}"
+                )
             self.states[k] = np.array(a)
         self.returns = np.array(arrays["returns"], np.float32)
         self.ptr = int(arrays["ptr"])
         self.size = int(arrays["size"])
-
-

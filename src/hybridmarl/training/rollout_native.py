@@ -72,7 +72,10 @@ class NativeScriptRollout:
         del clone_vars  # the demonstrator is a script
         key_data, resets, seeds = jax.device_get(self._draw(pool.key))
         resets = flatten_named(resets)  # {name: [K, B, ...]}
-        state = {k: np.array(v, order="C", copy=True) for k, v in flatten_named(jax.device_get(pool.states)).items()}
+        state = {
+            k: np.array(v, order="C", copy=True)
+            for k, v in flatten_named(jax.device_get(pool.states)).items()
+        }
         k_steps, b = self.steps, self.num_envs
         recorded = {k: np.empty((k_steps,) + v.shape, v.dtype) for k, v in state.items()}
         actions = np.zeros((k_steps, b, self.num_agents), np.int32)
@@ -89,10 +92,30 @@ class NativeScriptRollout:
             # them, so they stay the same objects from step to step.
             init_hp0 = np.ascontiguousarray(state["init_hp"][:, 0])
             step_scripted_games(
-                tuple(state["game." + f] for f in FIELDS), state["game.time"], state["game.turn"], state["game.stale"],
-                state["game.prev_hp_sum"], state["last_actions"], state["steps"], init_hp0, self.walkable,
-                self.script, self.enemy, self.num_agents, self.num_actions, self.overkill_pass, self.stalemate_limit,
-                self.max_turns, int(seeds[t]), chunks, actions[t], reward[t], done[t], won[t], lost[t], terminal[t],
+                tuple(state["game." + f] for f in FIELDS),
+                state["game.time"],
+                state["game.turn"],
+                state["game.stale"],
+                state["game.prev_hp_sum"],
+                state["last_actions"],
+                state["steps"],
+                init_hp0,
+                self.walkable,
+                self.script,
+                self.enemy,
+                self.num_agents,
+                self.num_actions,
+                self.overkill_pass,
+                self.stalemate_limit,
+                self.max_turns,
+                int(seeds[t]),
+                chunks,
+                actions[t],
+                reward[t],
+                done[t],
+                won[t],
+                lost[t],
+                terminal[t],
             )
             if done[t].any():  # pool_steps' resets: slot g takes step t's g-th fresh start state
                 for k, v in state.items():
@@ -101,12 +124,17 @@ class NativeScriptRollout:
         states = unflatten_named(self.template, state, batch_dims=1)
         pool = Pool(states=states, obs=self._observe(states), key=key_data)
         stats = {  # the names, and their order, of the JAX chunk's (jit returns dicts sorted by key)
-            "draw": (done & ~won & ~lost).astype(np.float32), "lost": lost.astype(np.float32),
-            "terminal_hp_reward": terminal, "won": won.astype(np.float32),
+            "draw": (done & ~won & ~lost).astype(np.float32),
+            "lost": lost.astype(np.float32),
+            "terminal_hp_reward": terminal,
+            "won": won.astype(np.float32),
         }
         out = {
-            "state": unflatten_named(self.template, recorded, batch_dims=2), "actions": actions,
-            "reward": reward, "done": done, "stats": stats,
+            "state": unflatten_named(self.template, recorded, batch_dims=2),
+            "actions": actions,
+            "reward": reward,
+            "done": done,
+            "stats": stats,
         }
         return pool, out
 
@@ -124,7 +152,9 @@ def _reset_draw_fn(task: Task, num_envs: int, steps: int):
             seed = jax.random.bits(k_act, (), jnp.uint32)
             return key, (states, seed)
 
-        key, (resets, seeds) = jax.lax.scan(body, jax.random.wrap_key_data(key_data), None, length=steps)
+        key, (resets, seeds) = jax.lax.scan(
+            body, jax.random.wrap_key_data(key_data), None, length=steps
+        )
         return jax.random.key_data(key), resets, seeds
 
     return jax.jit(draw)

@@ -189,9 +189,19 @@ class Run:
         self.spec = cfg.task_spec()
         self.task = make_task(self.spec)
         self.run_dir = resolve_run_dir(algo, cfg)
-        if cfg.resume and not (self.run_dir / "config.json").is_file() and latest_checkpoint(self.run_dir) is None:
-            what = "no such run directory" if not self.run_dir.exists() else "not a run directory (no config.json)"
-            raise CheckpointError(f"--resume: {self.run_dir}: {what}; drop --resume to start a new run there")
+        if (
+            cfg.resume
+            and not (self.run_dir / "config.json").is_file()
+            and latest_checkpoint(self.run_dir) is None
+        ):
+            what = (
+                "no such run directory"
+                if not self.run_dir.exists()
+                else "not a run directory (no config.json)"
+            )
+            raise CheckpointError(
+                f"--resume: {self.run_dir}: {what}; drop --resume to start a new run there"
+            )
         self.lock = RunLock(self.run_dir)
         self.lock.acquire()
         try:
@@ -203,11 +213,19 @@ class Run:
     def _open(self, cfg: TrainConfig) -> None:
         freed = remove_partial_writes(self.run_dir)
         if freed:
-            print(f"{self.run_dir}: removed {freed / 2**20:.1f} MiB of partial writes left by an interrupted run")
+            print(
+                f"{self.run_dir}: removed {freed / 2**20:.1f} MiB of partial writes left by an interrupted run"
+            )
         self.checkpoint = latest_checkpoint(self.run_dir)
         if self.checkpoint is not None and not cfg.resume:
-            how = "pass --resume to continue it" if self.resumable else f"pass --resume ({self.algo} restarts from scratch)"
-            raise TaskError(f"{self.run_dir} already holds checkpoints: {how}, or choose another --run-dir")
+            how = (
+                "pass --resume to continue it"
+                if self.resumable
+                else f"pass --resume ({self.algo} restarts from scratch)"
+            )
+            raise TaskError(
+                f"{self.run_dir} already holds checkpoints: {how}, or choose another --run-dir"
+            )
         self._meta: dict[str, Any] = {}
         if self.checkpoint is not None and self.resumable:
             check_same_setting(self.checkpoint, self.spec)
@@ -248,7 +266,10 @@ class Run:
             if isinstance(exc, KeyboardInterrupt) and self.resumable:
                 ck = latest_checkpoint(self.run_dir)
                 where = f"{ck.name} ({self.run_dir})" if ck else "no checkpoint yet"
-                print(f"\ninterrupted; last checkpoint: {where}; continue with: hybridmarl train --run-dir {self.run_dir} --resume", file=sys.stderr)
+                print(
+                    f"\ninterrupted; last checkpoint: {where}; continue with: hybridmarl train --run-dir {self.run_dir} --resume",
+                    file=sys.stderr,
+                )
         finally:
             self.lock.release()
 
@@ -257,7 +278,9 @@ class Run:
         ck = latest_checkpoint(self.run_dir) if self.resumable else None
         if ck is None:
             return "(no checkpoint was saved before it: fix the cause and start the run again)"
-        return f"(checkpoint {ck.name}, saved before it, is still valid: fix the cause and --resume)"
+        return (
+            f"(checkpoint {ck.name}, saved before it, is still valid: fix the cause and --resume)"
+        )
 
     def config_document(self, networks: dict[str, int] | None = None) -> dict[str, Any]:
         """config.json: the algo, the full config (flat), the task, network sizes, versions."""
@@ -265,7 +288,11 @@ class Run:
 
         doc: dict[str, Any] = {
             "algo": self.algo,
-            "config": {**config_to_dict(self.cfg), "demonstrator_name": self.cfg.demonstrator_name(), "eval_enemy_name": self.cfg.eval_enemy_name()},
+            "config": {
+                **config_to_dict(self.cfg),
+                "demonstrator_name": self.cfg.demonstrator_name(),
+                "eval_enemy_name": self.cfg.eval_enemy_name(),
+            },
             "task": self.spec.to_dict(),
         }
         if networks is not None:
@@ -273,53 +300,92 @@ class Run:
         doc["versions"] = {"jax": jax.__version__, "hybridmarl": __version__}
         return doc
 
-    def start(self, state: RunState, module: Any, policy: Callable[[], Any], policy_arrays: Callable[[], dict[str, np.ndarray]], networks: dict[str, int]) -> None:
+    def start(
+        self,
+        state: RunState,
+        module: Any,
+        policy: Callable[[], Any],
+        policy_arrays: Callable[[], dict[str, np.ndarray]],
+        networks: dict[str, int],
+    ) -> None:
         """Adopt the learner's state, resume it from the newest checkpoint (with --resume) and
         write config.json. 'policy()' gives the variables of the run's policy ('module'),
         'policy_arrays()' the arrays the 'best' checkpoint keeps of it."""
-        self.state, self.module, self._policy, self._policy_arrays = state, module, policy, policy_arrays
+        self.state, self.module, self._policy, self._policy_arrays = (
+            state,
+            module,
+            policy,
+            policy_arrays,
+        )
         self.config_doc = self.config_document(networks)
         self.periodic = PeriodicEval(self.cfg, self.run_dir, self.log, state.episodes)
         if self.checkpoint is not None:
             arrays, meta = self._arrays, self._meta
             bad = non_finite_array(arrays, tuple(state.TREES))
             if bad is not None:
-                raise CheckpointError(f"checkpoint {self.checkpoint}: array {bad!r} holds NaN/inf (the run diverged); resume from an earlier checkpoint")
+                raise CheckpointError(
+                    f"checkpoint {self.checkpoint}: array {bad!r} holds NaN/inf (the run diverged); resume from an earlier checkpoint"
+                )
             try:
                 state.restore(arrays, meta)
             except (KeyError, ValueError, TypeError) as e:
                 msg = str(e.args[0]) if e.args else type(e).__name__
-                raise CheckpointError(f"checkpoint {self.checkpoint} does not fit the run's config ({msg})") from None
+                raise CheckpointError(
+                    f"checkpoint {self.checkpoint} does not fit the run's config ({msg})"
+                ) from None
             self.clock.resume(meta)
             self.periodic.resume(meta, state.episodes)
             self.log.resume_at(state.episodes, meta.get("log_rows"))
             del self._arrays
-            print(f"resumed {self.run_dir} from {self.checkpoint.name} (phase {state.phase}, {state.episodes} episodes)")
+            print(
+                f"resumed {self.run_dir} from {self.checkpoint.name} (phase {state.phase}, {state.episodes} episodes)"
+            )
         self.log.write_config(self.config_doc)
 
     def checkpoint_meta(self) -> dict[str, Any]:
         return {
-            **self.state.meta(), **self.clock.elapsed(), **self.periodic.meta(),
-            "algo": self.algo, "config": self.config_doc["config"], "task": self.spec.to_dict(),
+            **self.state.meta(),
+            **self.clock.elapsed(),
+            **self.periodic.meta(),
+            "algo": self.algo,
+            "config": self.config_doc["config"],
+            "task": self.spec.to_dict(),
             "log_rows": self.log.row_counts(),
         }
 
     def save(self) -> None:
-        save_checkpoint(self.run_dir, self.state.episodes, self.state.arrays(), self.checkpoint_meta(), keep=self.cfg.keep_checkpoints)
+        save_checkpoint(
+            self.run_dir,
+            self.state.episodes,
+            self.state.arrays(),
+            self.checkpoint_meta(),
+            keep=self.cfg.keep_checkpoints,
+        )
 
     def evaluate(self, variables: Any, seed_offset: int = FINAL_EVAL_SEED) -> dict[str, Any]:
         """The evaluation protocol (Section 5.1) of the policy 'variables' against the
         evaluation enemy, on the start states of seed + 'seed_offset'."""
         from hybridmarl.training import evaluate as E
 
-        return E.evaluate_task(self.eval_task, self.module, variables, n=self.cfg.eval_episodes, seed=self.cfg.seed + seed_offset)
+        return E.evaluate_task(
+            self.eval_task,
+            self.module,
+            variables,
+            n=self.cfg.eval_episodes,
+            seed=self.cfg.seed + seed_offset,
+        )
 
     # -- the training loop --------------------------------------------------------------------------
 
     @contextlib.contextmanager
     def loop(self) -> Iterator[None]:
         """The interaction phase: the progress display while it runs; the last checkpoint after."""
-        self._progress = Progress(self.cfg.total_episodes, f"{self.algo} {self.spec.label()}", enabled=self.cfg.progress, start=self.state.episodes)
+        self._progress = Progress(
+            self.cfg.total_episodes,
+            f"{self.algo} {self.spec.label()}",
+            enabled=self.cfg.progress,
+            start=self.state.episodes,
+        )
         self._next_ckpt = self._after(self.state.episodes)
         # Ctrl-C stops the loop at the end of the chunk (a consistent state), which is then saved.
         handled = threading.current_thread() is threading.main_thread()
@@ -341,13 +407,21 @@ class Run:
         if self._interrupted:  # a second Ctrl-C: stop at once (the last checkpoint stays valid)
             raise KeyboardInterrupt
         self._interrupted = True
-        print("\nstopping at the end of this chunk to save a checkpoint (Ctrl-C again to stop at once)", file=sys.stderr, flush=True)
+        print(
+            "\nstopping at the end of this chunk to save a checkpoint (Ctrl-C again to stop at once)",
+            file=sys.stderr,
+            flush=True,
+        )
 
     def running(self) -> bool:
         """True while the episode budget lasts and the clock has not stopped the run; starts
         the timing of the next chunk."""
         self._t_chunk = time.time()
-        return not self.time_limited and not self._interrupted and self.state.episodes < self.cfg.total_episodes
+        return (
+            not self.time_limited
+            and not self._interrupted
+            and self.state.episodes < self.cfg.total_episodes
+        )
 
     def count(self, stats: dict[str, np.ndarray], env_steps: int) -> None:
         """Count a chunk: its finished episodes (per-episode metrics 'stats') and env steps."""
@@ -363,18 +437,33 @@ class Run:
     def recent(self) -> dict[str, float]:
         """Means over the last 100 episodes (NaN until there is history)."""
         h = self.state.history
-        return {k: float(np.mean(h[k][-100:])) if h.get(k) else float("nan") for k in (*self.task.metric_names, "return")}
+        return {
+            k: float(np.mean(h[k][-100:])) if h.get(k) else float("nan")
+            for k in (*self.task.metric_names, "return")
+        }
 
-    def train_row(self, head: dict[str, Any], chunk_s: float, per_second: dict[str, float] | None = None, episodes: int | None = None) -> dict[str, Any]:
+    def train_row(
+        self,
+        head: dict[str, Any],
+        chunk_s: float,
+        per_second: dict[str, float] | None = None,
+        episodes: int | None = None,
+    ) -> dict[str, Any]:
         """One train.csv row. Every row has the same keys (the CSV header is the first row's,
         often written before any episode has finished)."""
         return {
-            "episodes": self.state.episodes if episodes is None else episodes, "env_steps": self.state.env_steps, **head,
-            **{f"{k}_100": v for k, v in self.recent().items()}, "chunk_s": chunk_s,
-            **{k: n / max(chunk_s, 1e-9) for k, n in (per_second or {}).items()}, **self.clock.elapsed(),
+            "episodes": self.state.episodes if episodes is None else episodes,
+            "env_steps": self.state.env_steps,
+            **head,
+            **{f"{k}_100": v for k, v in self.recent().items()},
+            "chunk_s": chunk_s,
+            **{k: n / max(chunk_s, 1e-9) for k, n in (per_second or {}).items()},
+            **self.clock.elapsed(),
         }
 
-    def log_chunk(self, head: dict[str, Any], status: str, per_second: dict[str, float] | None = None) -> None:
+    def log_chunk(
+        self, head: dict[str, Any], status: str, per_second: dict[str, float] | None = None
+    ) -> None:
         """After a chunk: its train.csv row ('head': the method's columns), its episodes.csv
         rows, TensorBoard, the progress line ('status': the method's part), the periodic
         evaluation, the checkpoint cadence and the time limit."""
@@ -383,14 +472,27 @@ class Run:
         self.log.train.write([row])
         self.log.scalars(st.episodes, row)
         first, n_new, stats = self._new
-        self.log.episodes.write([
-            {"episode": first + i + 1, "env_steps": st.env_steps, **{k: float(v[i]) for k, v in stats.items()}}
-            for i in range(n_new)
-        ])
+        self.log.episodes.write(
+            [
+                {
+                    "episode": first + i + 1,
+                    "env_steps": st.env_steps,
+                    **{k: float(v[i]) for k, v in stats.items()},
+                }
+                for i in range(n_new)
+            ]
+        )
         if self._progress is not None:
             primary, secondary = self.task.progress_metrics
-            self._progress.update(st.episodes, f"{recent_status(self.recent(), primary, secondary)}  {status}")
-        self.periodic.maybe_run(st.episodes, lambda off: self.evaluate(self._policy(), off), self._policy_arrays, self.checkpoint_meta())
+            self._progress.update(
+                st.episodes, f"{recent_status(self.recent(), primary, secondary)}  {status}"
+            )
+        self.periodic.maybe_run(
+            st.episodes,
+            lambda off: self.evaluate(self._policy(), off),
+            self._policy_arrays,
+            self.checkpoint_meta(),
+        )
         if st.episodes >= self._next_ckpt:
             self.save()
             self._next_ckpt = self._after(st.episodes)
@@ -409,7 +511,15 @@ class Run:
 
     # -- the end ------------------------------------------------------------------------------------
 
-    def finish(self, counters: dict[str, Any], *, before: dict[str, Any] | None = None, baseline: float | None = None, note: str = "", lines: Callable[[dict[str, Any]], list[str]] | None = None) -> TrainResult:
+    def finish(
+        self,
+        counters: dict[str, Any],
+        *,
+        before: dict[str, Any] | None = None,
+        baseline: float | None = None,
+        note: str = "",
+        lines: Callable[[dict[str, Any]], list[str]] | None = None,
+    ) -> TrainResult:
         """The final evaluation (Section 5.1) of the run's policy and of its 'best' checkpoint
         (--eval-every), eval.json, the training curve and the result lines. 'before': results
         reported next to the policy's (e.g. the last actor); 'counters': the run's counters."""
@@ -420,16 +530,33 @@ class Run:
         pause_point("evaluation")
         result = self.evaluate(self._policy())
         result.update(before or {})
-        result.update(enemy=self.eval_task.enemy, episodes=st.episodes, **counters, **self.clock.elapsed())
+        result.update(
+            enemy=self.eval_task.enemy, episodes=st.episodes, **counters, **self.clock.elapsed()
+        )
         best = E.evaluate_best(self.run_dir, self.evaluate)
         if best is not None:
             result["best"] = best
         write_json_atomic(self.run_dir / "eval.json", result)
-        self.log.scalars(st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval")
+        self.log.scalars(
+            st.episodes, {k: v for k, v in result.items() if isinstance(v, float)}, prefix="eval"
+        )
         secondary = self.task.progress_metrics[1]
         title = f"{self.algo}: {self.spec.label()}, A^D = {self.cfg.demonstrator_name()}"
-        plots.training_curve(st.history.get(secondary, []), self.run_dir / "curve.png", metric=secondary, title=title, baseline=baseline)
-        return self._close(result, note, [*(lines(result) if lines else []), *([E.best_line(self.task, result, best)] if best else [])])
+        plots.training_curve(
+            st.history.get(secondary, []),
+            self.run_dir / "curve.png",
+            metric=secondary,
+            title=title,
+            baseline=baseline,
+        )
+        return self._close(
+            result,
+            note,
+            [
+                *(lines(result) if lines else []),
+                *([E.best_line(self.task, result, best)] if best else []),
+            ],
+        )
 
     def report(self, result: dict[str, Any]) -> TrainResult:
         """For a learner without a training loop (BC): write eval.json, close the logs, print

@@ -35,12 +35,24 @@ from hybridmarl.validate import check_values, rule_for
 
 #: Config fields a ``--resume`` may change: they steer how long the run goes on, how often it
 #: saves or evaluates, and where it logs, never what it learns.
-RESUME_MAY_CHANGE = frozenset({
-    "total_episodes", "time_limit_min",  # budgets
-    "eval_episodes", "eval_every", "keep_best",  # evaluation cadence
-    "run_dir", "name", "resume", "checkpoint_every", "keep_checkpoints", "tensorboard", "progress",  # the run itself
-    "demonstrator_name", "eval_enemy_name",  # derived labels that config.json stores beside the fields
-})
+RESUME_MAY_CHANGE = frozenset(
+    {
+        "total_episodes",
+        "time_limit_min",  # budgets
+        "eval_episodes",
+        "eval_every",
+        "keep_best",  # evaluation cadence
+        "run_dir",
+        "name",
+        "resume",
+        "checkpoint_every",
+        "keep_checkpoints",
+        "tensorboard",
+        "progress",  # the run itself
+        "demonstrator_name",
+        "eval_enemy_name",  # derived labels that config.json stores beside the fields
+    }
+)
 
 LOCK_NAME = ".lock"
 
@@ -57,7 +69,9 @@ def _type_problem(value: Any, default: Any) -> str | None:
     if isinstance(default, int):
         return None if isinstance(value, int) and not isinstance(value, bool) else "an integer"
     if isinstance(default, float):
-        return None if isinstance(value, int | float) and not isinstance(value, bool) else "a number"
+        return (
+            None if isinstance(value, int | float) and not isinstance(value, bool) else "a number"
+        )
     if isinstance(default, str):
         return None if isinstance(value, str) else "a string"
     if isinstance(default, tuple):
@@ -81,7 +95,9 @@ def check_config_fields(path: Path, section: str, values: Any, defaults: Any) ->
         if problem is not None:
             raise CheckpointError(f"{path}: {section}.{name} must be {problem}, got {value!r}")
     checked = {n: (tuple(v) if isinstance(v, list) else v) for n, v in values.items() if n in known}
-    checked = {n: v for n, v in checked.items() if rule_for(n, known[n] if v is None else v) is not None}
+    checked = {
+        n: v for n, v in checked.items() if rule_for(n, known[n] if v is None else v) is not None
+    }
     check_values(checked, label=lambda n: f"{path}: {section}.{n}", error=CheckpointError)
 
 
@@ -99,9 +115,13 @@ def read_run_config(run_dir: str | Path) -> dict[str, Any]:
     doc = read_user_json(path, "run config", CheckpointError)
     for key in ("algo", "config", "task"):
         if key not in doc:
-            raise CheckpointError(f"{path}: missing key {key!r} (not a complete hybridmarl run config)")
+            raise CheckpointError(
+                f"{path}: missing key {key!r} (not a complete hybridmarl run config)"
+            )
     if not isinstance(doc["algo"], str) or doc["algo"] not in ALGOS:
-        raise CheckpointError(f"{path}: algo must be one of {', '.join(ALGOS)}, got {doc['algo']!r}")
+        raise CheckpointError(
+            f"{path}: algo must be one of {', '.join(ALGOS)}, got {doc['algo']!r}"
+        )
     mod = algo_module(doc["algo"])
     check_config_fields(path, "config", doc["config"], type(mod.PRESETS["toy"]("combat"))())
     check_config_fields(path, "task", doc["task"], TaskSpec())
@@ -147,9 +167,13 @@ class RunLock:
             os.close(fd)
         previous = _read_holder(self.path)
         if previous and previous.get("pid") != os.getpid():
-            print(f"{self.path.parent}: taking over the lock of {_describe(previous)}, which is no longer running")
+            print(
+                f"{self.path.parent}: taking over the lock of {_describe(previous)}, which is no longer running"
+            )
         os.ftruncate(fd, 0)
-        os.write(fd, (json.dumps({"pid": os.getpid(), "host": socket.gethostname()}) + "\n").encode())
+        os.write(
+            fd, (json.dumps({"pid": os.getpid(), "host": socket.gethostname()}) + "\n").encode()
+        )
         os.fsync(fd)
         self._fd = fd
 
@@ -193,7 +217,9 @@ def remove_partial_writes(run_dir: Path) -> int:
     if root.is_dir():
         candidates += [p for p in root.iterdir() if p.name.startswith((".tmp_", ".old_"))]
     if Path(run_dir).is_dir():
-        candidates += [p for p in Path(run_dir).iterdir() if p.name.startswith(".") and p.name.endswith(".tmp")]
+        candidates += [
+            p for p in Path(run_dir).iterdir() if p.name.startswith(".") and p.name.endswith(".tmp")
+        ]
     for p in candidates:
         if p.is_dir() and not p.is_symlink():
             freed += sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
@@ -215,7 +241,9 @@ def check_resume_config(checkpoint: Path, saved: Any, current: dict[str, Any]) -
     if saved is None:
         return  # a checkpoint that does not record its config (written by hand or by a tool)
     if not isinstance(saved, dict):
-        raise CheckpointError(f"checkpoint {checkpoint}: meta.json's config must be an object, not {type(saved).__name__}")
+        raise CheckpointError(
+            f"checkpoint {checkpoint}: meta.json's config must be an object, not {type(saved).__name__}"
+        )
     for name, value in current.items():
         if name in RESUME_MAY_CHANGE or name not in saved:
             continue
@@ -240,12 +268,23 @@ def _normal(v: Any) -> Any:
 def non_finite_array(arrays: dict[str, np.ndarray], prefixes: tuple[str, ...]) -> str | None:
     """The name of the first floating array under one of ``prefixes`` holding NaN/inf, or None."""
     for name, a in arrays.items():
-        if name.split(".")[0] in prefixes and np.issubdtype(a.dtype, np.floating) and not np.all(np.isfinite(a)):
+        if (
+            name.split(".")[0] in prefixes
+            and np.issubdtype(a.dtype, np.floating)
+            and not np.all(np.isfinite(a))
+        ):
             return name
     return None
 
 
 __all__ = [
-    "LOCK_NAME", "RESUME_MAY_CHANGE", "RunInUse", "RunLock", "check_config_fields", "check_resume_config",
-    "non_finite_array", "read_run_config", "remove_partial_writes",
+    "LOCK_NAME",
+    "RESUME_MAY_CHANGE",
+    "RunInUse",
+    "RunLock",
+    "check_config_fields",
+    "check_resume_config",
+    "non_finite_array",
+    "read_run_config",
+    "remove_partial_writes",
 ]

@@ -114,7 +114,9 @@ class Task:
     ``hybridmarl.envs.combat.learned_enemy``) that plays the enemy instead of ``spec.enemy``.
     """
 
-    def __init__(self, spec: TaskSpec, enemy_script: Callable[..., jax.Array] | None = None) -> None:
+    def __init__(
+        self, spec: TaskSpec, enemy_script: Callable[..., jax.Array] | None = None
+    ) -> None:
         self.spec = spec
         self.kind = canonical_env(spec.env)
         self.env_class = envs.env_class(self.kind)
@@ -183,7 +185,9 @@ class Task:
         """float32 metrics of an episode whose last step returned ``(state, info)``."""
         return self.env.episode_metrics(state, info)
 
-    def agent_rewards(self, state: Any, next_state: Any, done: jax.Array, info: dict[str, jax.Array]) -> jax.Array:
+    def agent_rewards(
+        self, state: Any, next_state: Any, done: jax.Array, info: dict[str, jax.Array]
+    ) -> jax.Array:
         """Per-agent rewards ``[N]`` of one step (the independent learners DQfD and OGTL)."""
         return self.env.agent_rewards(state, next_state, done, info)
 

@@ -43,7 +43,9 @@ Alg1Fn = Callable[[jax.Array, Any], dict[str, jax.Array]]
 action Ã at a decision point, the joint action it started from and Q(s, ·) of both."""
 
 
-def alg1_entry(choice: dict[str, Any], labels: list[list[str]], agents: list[int]) -> dict[str, Any]:
+def alg1_entry(
+    choice: dict[str, Any], labels: list[list[str]], agents: list[int]
+) -> dict[str, Any]:
     """The JSON of one Alg. 1 result for the listed agents: their actions in Ã (``actions``) and
     in the start joint action (``start``), in the order given, Q of both joint actions, and how
     many agents Alg. 1 moved away from the start."""
@@ -68,7 +70,9 @@ class _Recorder:
         self.facts = render_facts(env.rules)
         uid = np.asarray(start.uid)
         utype = np.asarray(start.utype)
-        self.slots = [(p, s) for p in (0, 1) for s in range(uid.shape[1]) if uid[p, s] < PAD_ID_BASE]
+        self.slots = [
+            (p, s) for p in (0, 1) for s in range(uid.shape[1]) if uid[p, s] < PAD_ID_BASE
+        ]
         self.units = [
             {
                 "id": int(uid[p, s]),
@@ -126,12 +130,17 @@ class _Recorder:
         return frame
 
     @staticmethod
-    def _describe(before: Any, after: Any, p: int, s: int, code: int, attacks: list[list[int]]) -> str:
+    def _describe(
+        before: Any, after: Any, p: int, s: int, code: int, attacks: list[list[int]]
+    ) -> str:
         """``hybridmarl trace``'s wording of one engine action (ATTACK/MOVE/RELOAD/PASS)."""
         if code >= R.ATTACK_BASE:
             target = int(before.uid[1 - p, code - R.ATTACK_BASE])
             t = int(before.time)
-            if int(after.t_move[p, s]) == t + PASS_DURATION and int(after.t_attack[p, s]) == t + PASS_DURATION:
+            if (
+                int(after.t_move[p, s]) == t + PASS_DURATION
+                and int(after.t_attack[p, s]) == t + PASS_DURATION
+            ):
                 return f"ATTACK {target} [overkill->PASS]"  # the target died earlier in the turn
             attacks.append([int(before.uid[p, s]), target])
             return f"ATTACK {target}"
@@ -146,7 +155,9 @@ def _action_codes_fn(env: Any) -> Callable[[Any], jax.Array]:
 
     def codes(state: Any) -> jax.Array:
         every = jnp.arange(na, dtype=jnp.int32)
-        return jax.vmap(lambda a: env.env_to_engine_actions(state, jnp.full((n0,), a, jnp.int32)))(every)
+        return jax.vmap(lambda a: env.env_to_engine_actions(state, jnp.full((n0,), a, jnp.int32)))(
+            every
+        )
 
     return jax.jit(codes)
 
@@ -160,7 +171,11 @@ def _action_labels(codes: np.ndarray, uid: np.ndarray) -> list[list[str]]:
         row: list[str] = list(COMBAT_ACTION_NAMES)
         for a in range(len(COMBAT_ACTION_NAMES), na):
             j = int(codes[a, i]) - R.ATTACK_BASE
-            row.append(f"attack {int(uid[1, j])}" if 0 <= j < uid.shape[1] and uid[1, j] < PAD_ID_BASE else f"attack[{a - len(COMBAT_ACTION_NAMES)}]")
+            row.append(
+                f"attack {int(uid[1, j])}"
+                if 0 <= j < uid.shape[1] and uid[1, j] < PAD_ID_BASE
+                else f"attack[{a - len(COMBAT_ACTION_NAMES)}]"
+            )
         labels.append(row)
     return labels
 
@@ -204,7 +219,9 @@ def record_combat_timeline(
     none = jnp.full((2, u), -1, jnp.int32)
     pass_all = jnp.full((u,), R.PASS_ACTION, jnp.int32)
 
-    def play_turn(key: jax.Array, game: GameState, ours: jax.Array, n: int, step: int, last: np.ndarray) -> tuple[GameState, dict[str, Any], np.ndarray]:
+    def play_turn(
+        key: jax.Array, game: GameState, ours: jax.Array, n: int, step: int, last: np.ndarray
+    ) -> tuple[GameState, dict[str, Any], np.ndarray]:
         """One engine turn; its frame, and ``last`` updated like ``CombatState.last_actions``."""
         new, acts = turn(key, game, none, ours, jnp.int32(n))
         acts = np.asarray(acts)  # engine action of each unit that acted this turn, -1 elsewhere
@@ -227,7 +244,12 @@ def record_combat_timeline(
         n += 1
 
     def combat_state(game: GameState, last: np.ndarray, steps: int) -> Any:
-        return CombatState(game=game, last_actions=jnp.asarray(last), init_hp=jnp.asarray(init_hp), steps=jnp.int32(steps))
+        return CombatState(
+            game=game,
+            last_actions=jnp.asarray(last),
+            init_hp=jnp.asarray(init_hp),
+            steps=jnp.int32(steps),
+        )
 
     norm = np.float32(max(int(init_hp[0]), 1))
     state = combat_state(game, last, 0)
@@ -242,16 +264,23 @@ def record_combat_timeline(
         agents = []
         acting_agents = [i for i in range(env.num_agents) if acting0[i]]
         for i in acting_agents:
-            entry: dict[str, Any] = {"unit": int(np.asarray(state.game.uid)[0, i]), "chosen": labels[i][int(actions[i])]}
+            entry: dict[str, Any] = {
+                "unit": int(np.asarray(state.game.uid)[0, i]),
+                "chosen": labels[i][int(actions[i])],
+            }
             if p is not None:
                 order = np.argsort(-p[i], kind="stable")[:TOP_ACTIONS]
-                entry["probs"] = [[labels[i][a], round(float(p[i, a]), 4)] for a in order if p[i, a] > 0]
+                entry["probs"] = [
+                    [labels[i][a], round(float(p[i, a]), 4)] for a in order if p[i, a] > 0
+                ]
             agents.append(entry)
 
         alg1 = None
         if alg1_fn is not None:
             alg1 = alg1_entry(alg1_fn(k_env, state), labels, acting_agents)
-            for entry, action, start in zip(agents, alg1.pop("actions"), alg1.pop("start"), strict=True):
+            for entry, action, start in zip(
+                agents, alg1.pop("actions"), alg1.pop("start"), strict=True
+            ):
                 entry["alg1"], entry["alg1_start"] = action, start
 
         eng0, bad, _ = engine_actions(state, actions)
@@ -261,7 +290,11 @@ def record_combat_timeline(
         last = np.full((2, u), -1, np.int32)
         game, first, last = play_turn(k_env, state.game, eng0, 0, steps, last)
         first["decision"] = True
-        first["policy"] = {"env_actions": np.asarray(actions).tolist(), "agents": agents, "illegal": int(np.asarray(bad).sum())}
+        first["policy"] = {
+            "env_actions": np.asarray(actions).tolist(),
+            "agents": agents,
+            "illegal": int(np.asarray(bad).sum()),
+        }
         if alg1 is not None:
             first["policy"]["alg1"] = alg1
         n = 1
@@ -289,4 +322,10 @@ def record_combat_timeline(
         },
         "players": ["ours", "enemy"],
     }
-    return timeline, {"state": state, "return": total, "illegal": illegal, "done": done, "steps": steps}
+    return timeline, {
+        "state": state,
+        "return": total,
+        "illegal": illegal,
+        "done": done,
+        "steps": steps,
+    }

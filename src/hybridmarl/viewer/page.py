@@ -37,7 +37,9 @@ __all__ = ["render_page", "write_page"]
 
 
 def _template() -> str:
-    return resources.files("hybridmarl.viewer").joinpath("template.html").read_text(encoding="utf-8")
+    return (
+        resources.files("hybridmarl.viewer").joinpath("template.html").read_text(encoding="utf-8")
+    )
 
 
 def render_page(timeline: dict[str, Any], *, title: str, subtitle: str = "", fps: int = 8) -> str:
@@ -50,7 +52,9 @@ def render_page(timeline: dict[str, Any], *, title: str, subtitle: str = "", fps
     return _template().replace("__TITLE__", html.escape(title)).replace("__DATA__", payload)
 
 
-def write_page(path: str | Path, timeline: dict[str, Any], *, title: str, subtitle: str = "", fps: int = 8) -> str:
+def write_page(
+    path: str | Path, timeline: dict[str, Any], *, title: str, subtitle: str = "", fps: int = 8
+) -> str:
     """Write the page atomically to ``path`` (parent folders created), UTF-8 whatever the
     locale; returns the path."""
     text = render_page(timeline, title=title, subtitle=subtitle, fps=fps)

@@ -78,7 +78,9 @@ def record_tj_timeline(
     key = jax.random.key(seed)
     key, k0 = jax.random.split(key)
     _, state = env.reset(k0, params)
-    frames: list[dict[str, Any]] = [{"t": 0, **cars(state), "action": [None] * num_agents, "collisions": 0, "arrivals": 0}]
+    frames: list[dict[str, Any]] = [
+        {"t": 0, **cars(state), "action": [None] * num_agents, "collisions": 0, "arrivals": 0}
+    ]
     total, done = 0.0, False
     while not done and len(frames) <= max_steps:
         key, k_act, k_env = jax.random.split(key, 3)
@@ -92,12 +94,19 @@ def record_tj_timeline(
         arrived = np.asarray(info["arrived"])
         # Where each car stood after this step's move (before arrivals left the road).
         moved = np.where(active0 & (actions == 1), np.minimum(pos0 + 1, lengths[route0] - 1), pos0)
-        hit_cells = sorted({tuple(int(v) for v in ROUTE_CELLS[route0[i], moved[i]]) for i in np.flatnonzero(collided)})
+        hit_cells = sorted(
+            {
+                tuple(int(v) for v in ROUTE_CELLS[route0[i], moved[i]])
+                for i in np.flatnonzero(collided)
+            }
+        )
         stayed = active0 & ~arrived
         frame: dict[str, Any] = {
             "t": int(new.t),
             **cars(new),
-            "action": [TJ_ACTION_NAMES[int(actions[i])] if active0[i] else None for i in range(num_agents)],
+            "action": [
+                TJ_ACTION_NAMES[int(actions[i])] if active0[i] else None for i in range(num_agents)
+            ],
             "collided": [bool(c) for c in collided],
             "arrived": [bool(a) for a in arrived],
             "spawned": [bool(new.active[i]) and not bool(stayed[i]) for i in range(num_agents)],
@@ -109,7 +118,8 @@ def record_tj_timeline(
         }
         if p is not None:
             frame["probs"] = [
-                [round(float(p[i, 0]), 4), round(float(p[i, 1]), 4)] if active0[i] else None for i in range(num_agents)
+                [round(float(p[i, 0]), 4), round(float(p[i, 1]), 4)] if active0[i] else None
+                for i in range(num_agents)
             ]
         if alg1 is not None:
             cars_in_play = [i for i in range(num_agents) if active0[i]]

@@ -72,7 +72,8 @@ def make_q_fn(
     steps: int = 1,
     step_fn: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]] | None = None,
     policy_fn: Callable[[jax.Array, Any], jax.Array] | None = None,
-    batch_step_fn: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]] | None = None,
+    batch_step_fn: Callable[[jax.Array, Any, jax.Array], tuple[jax.Array, Any, jax.Array]]
+    | None = None,
 ) -> QFn:
     """Build Eq. 2's ``Q(s, A) = r + λ V(s')`` (``V(s') = 0`` at a terminal ``s'``) for B games.
 
@@ -99,7 +100,9 @@ def make_q_fn(
             flat = jax.tree.map(lambda x: x.reshape((b * a,) + x.shape[2:]), s2)
         else:
             rep = (lambda x: x) if a == 1 else (lambda x: jnp.repeat(x, a, axis=0))
-            r, flat, done = batch_step_fn(rep(keys), jax.tree.map(rep, states), cand.reshape((b * a,) + cand.shape[2:]))
+            r, flat, done = batch_step_fn(
+                rep(keys), jax.tree.map(rep, states), cand.reshape((b * a,) + cand.shape[2:])
+            )
         ret = r.reshape(-1)
         disc = jnp.full((b * a,), gamma, jnp.float32)
         ended = done.reshape(-1)
@@ -126,10 +129,16 @@ def make_q_fn(
                 live = ~ended
                 ret = ret + jnp.where(live, disc * r2, 0.0)
                 disc = jnp.where(live, disc * gamma, disc)
-                s = jax.tree.map(lambda x, y: jnp.where(live.reshape(live.shape + (1,) * (x.ndim - 1)), x, y), s_next, s)
+                s = jax.tree.map(
+                    lambda x, y: jnp.where(live.reshape(live.shape + (1,) * (x.ndim - 1)), x, y),
+                    s_next,
+                    s,
+                )
                 return i + 1, ret, disc, s, ended | d2
 
-            _, ret, disc, flat, ended = jax.lax.while_loop(cond, body, (jnp.zeros((), jnp.int32), ret, disc, flat, ended))
+            _, ret, disc, flat, ended = jax.lax.while_loop(
+                cond, body, (jnp.zeros((), jnp.int32), ret, disc, flat, ended)
+            )
         v = value_fn(flat)
         return (ret + disc * jnp.where(ended, 0.0, v)).reshape(b, a)
 
@@ -182,17 +191,25 @@ def best_response_dynamics(
     def q_rows_dense(act: jax.Array, g: jax.Array, need: jax.Array) -> tuple[jax.Array, jax.Array]:
         """[B, A] Q(s, a, Ã_-g) of every action: one call on all games in place (no gather)."""
         cand = jnp.broadcast_to(act[:, None, :], (b, na, n))
-        cand = jnp.where(jnp.arange(n)[None, None, :] == g[:, None, None], actions_range[None, :, None], cand)
+        cand = jnp.where(
+            jnp.arange(n)[None, None, :] == g[:, None, None], actions_range[None, :, None], cand
+        )
         calls = jnp.any(need).astype(jnp.int32)
-        q = jax.lax.cond(calls > 0, lambda: q_fn(keys, states, cand), lambda: jnp.zeros((b, na), jnp.float32))
+        q = jax.lax.cond(
+            calls > 0, lambda: q_fn(keys, states, cand), lambda: jnp.zeros((b, na), jnp.float32)
+        )
         return q, calls
 
-    def q_rows_compact(act: jax.Array, g: jax.Array, need: jax.Array, lg: jax.Array) -> tuple[jax.Array, jax.Array]:
+    def q_rows_compact(
+        act: jax.Array, g: jax.Array, need: jax.Array, lg: jax.Array
+    ) -> tuple[jax.Array, jax.Array]:
         """[B, A] Q(s, a, Ã_-g) of the legal actions of the games that need this visit (0
         elsewhere): those (game, action) pairs are gathered and simulated ``pairs`` at a time."""
         flat = (need[:, None] & lg).reshape(-1)  # [B * A]
         order = jnp.argsort(~flat, stable=True).astype(jnp.int32)
-        order = jnp.concatenate([order, jnp.zeros((max_passes * pairs - b * na,), jnp.int32)])  # [passes x P]
+        order = jnp.concatenate(
+            [order, jnp.zeros((max_passes * pairs - b * na,), jnp.int32)]
+        )  # [passes x P]
         count = jnp.sum(flat).astype(jnp.int32)
         calls = (count + pairs - 1) // pairs
 
@@ -237,7 +254,15 @@ def best_response_dynamics(
         trace = trace.at[t].set(jnp.where(need & update, q_now, trace[t]))
         tables = (act, qtab, qval, qcur, late, changes, q_init, trace)
         count = jnp.sum(need).astype(jnp.int32)
-        return tables, active, sweep, update, visits + calls, evaluated + count, simulated + calls * pairs
+        return (
+            tables,
+            active,
+            sweep,
+            update,
+            visits + calls,
+            evaluated + count,
+            simulated + calls * pairs,
+        )
 
     def sweep_fn(carry: tuple) -> tuple:
         """One pass over the agents of the games still active: an update sweep while fewer
@@ -269,8 +294,12 @@ def best_response_dynamics(
         jnp.full((max(iterations, 1) * n, b), jnp.nan, jnp.float32),
     )
     zero = jnp.zeros((), jnp.int32)
-    carry = jax.lax.while_loop(lambda c: jnp.any(c[1]), sweep_fn, (tables, n_dec > 0, zero, zero, zero, zero))
-    (act, qtab, qval, qcur, _, changes, q_init, trace), _, sweep, visits, evaluated, simulated = carry
+    carry = jax.lax.while_loop(
+        lambda c: jnp.any(c[1]), sweep_fn, (tables, n_dec > 0, zero, zero, zero, zero)
+    )
+    (act, qtab, qval, qcur, _, changes, q_init, trace), _, sweep, visits, evaluated, simulated = (
+        carry
+    )
     return BRDResult(
         actions=act,
         q=qtab,

@@ -38,10 +38,33 @@ from hybridmarl.envs.combat.native import (
 
 
 @njit(cache=True, parallel=True)
-def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
-                        num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma,
-                        overkill_pass, stalemate_limit, max_turns, seed, n_chunks,
-                        ret_out, disc_out, ended_out, feats_out):
+def simulate_candidates(
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    init_hp0,
+    walkable,
+    games,
+    joint,
+    num_agents,
+    num_enemies,
+    num_actions,
+    enemy,
+    continuation,
+    steps,
+    gamma,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    seed,
+    n_chunks,
+    ret_out,
+    disc_out,
+    ended_out,
+    feats_out,
+):
     """For every pair ``i``: game ``games[i]`` of the batch plays ``joint[i]`` for one env step,
     then ``continuation`` (our side's script) for up to ``steps - 1`` more, against the
     ``enemy`` script. Writes the discounted return ``sum_t γ^t r_t``, the discount ``γ^K`` at
@@ -59,17 +82,77 @@ def simulate_candidates(fields, time, turn, stale, prev_hp_sum, init_hp0, walkab
     for c in prange(n_chunks):
         # A plain (serial) function per chunk: Numba compiles it as such, not as a parfor body.
         # np.int64(c): the parfor's index is unsigned, and another argument type is another compile.
-        _simulate_chunk(np.int64(c), n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
-                        num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
-                        stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out,
-                        game[c], clock[c], make_workspace(n), ranks[c], acts[c], values[c])
+        _simulate_chunk(
+            np.int64(c),
+            n_chunks,
+            fields,
+            time,
+            turn,
+            stale,
+            prev_hp_sum,
+            init_hp0,
+            walkable,
+            games,
+            joint,
+            num_agents,
+            num_enemies,
+            num_actions,
+            enemy,
+            continuation,
+            steps,
+            gamma,
+            overkill_pass,
+            stalemate_limit,
+            max_turns,
+            seed,
+            ret_out,
+            disc_out,
+            ended_out,
+            feats_out,
+            game[c],
+            clock[c],
+            make_workspace(n),
+            ranks[c],
+            acts[c],
+            values[c],
+        )
 
 
 @njit_without_refcount
-def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, games, joint,
-                    num_agents, num_enemies, num_actions, enemy, continuation, steps, gamma, overkill_pass,
-                    stalemate_limit, max_turns, seed, ret_out, disc_out, ended_out, feats_out,
-                    game, clock, ws, ranks, acts, values):
+def _simulate_chunk(
+    c,
+    n_chunks,
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    init_hp0,
+    walkable,
+    games,
+    joint,
+    num_agents,
+    num_enemies,
+    num_actions,
+    enemy,
+    continuation,
+    steps,
+    gamma,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    seed,
+    ret_out,
+    disc_out,
+    ended_out,
+    feats_out,
+    game,
+    clock,
+    ws,
+    ranks,
+    acts,
+    values,
+):
     """Chunk ``c`` of :func:`simulate_candidates` in the given scratch: ``game`` ``[11, 2, U]``
     (one state's unit fields), ``clock`` ``[5]`` (time, turn, stale, prev_hp_sum), ``ws`` (an
     engine workspace), ``ranks`` ``[2, U]``, ``acts`` ``[N]``, ``values`` ``[2, U]``.
@@ -98,21 +181,103 @@ def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp
         s_prev[0, 1] = prev_hp_sum[g, 1]
         for u in range(num_agents):
             acts[u] = joint[i, u]
-        r, ended = env_step(g0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
-                            s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts, num_agents,
-                            num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
-                            init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(False))
+        r, ended = env_step(
+            g0,
+            s_utype,
+            s_uid,
+            s_x,
+            s_y,
+            s_px,
+            s_py,
+            s_tact,
+            s_last,
+            s_hp,
+            s_tmove,
+            s_tatk,
+            s_time,
+            s_turn,
+            s_stale,
+            s_prev,
+            walkable,
+            acts,
+            num_agents,
+            num_actions,
+            enemy,
+            overkill_pass,
+            stalemate_limit,
+            max_turns,
+            init_hp0[g],
+            seed,
+            g,
+            ws,
+            rank_slot,
+            rank_of,
+            np.bool_(False),
+        )
         ret = r
         disc = gamma
         k = 1
         while k < steps and not ended:
-            script_env_actions(g0, s_utype, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove,
-                               s_tatk, s_time, s_turn, s_stale, walkable, continuation, num_agents,
-                               stalemate_limit, max_turns, seed, g, ws, rank_slot, rank_of, acts)
-            r, ended = env_step(g0, s_utype, s_uid, s_x, s_y, s_px, s_py, s_tact, s_last, s_hp,
-                                s_tmove, s_tatk, s_time, s_turn, s_stale, s_prev, walkable, acts,
-                                num_agents, num_actions, enemy, overkill_pass, stalemate_limit,
-                                max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(True))
+            script_env_actions(
+                g0,
+                s_utype,
+                s_x,
+                s_y,
+                s_px,
+                s_py,
+                s_tact,
+                s_last,
+                s_hp,
+                s_tmove,
+                s_tatk,
+                s_time,
+                s_turn,
+                s_stale,
+                walkable,
+                continuation,
+                num_agents,
+                stalemate_limit,
+                max_turns,
+                seed,
+                g,
+                ws,
+                rank_slot,
+                rank_of,
+                acts,
+            )
+            r, ended = env_step(
+                g0,
+                s_utype,
+                s_uid,
+                s_x,
+                s_y,
+                s_px,
+                s_py,
+                s_tact,
+                s_last,
+                s_hp,
+                s_tmove,
+                s_tatk,
+                s_time,
+                s_turn,
+                s_stale,
+                s_prev,
+                walkable,
+                acts,
+                num_agents,
+                num_actions,
+                enemy,
+                overkill_pass,
+                stalemate_limit,
+                max_turns,
+                init_hp0[g],
+                seed,
+                g,
+                ws,
+                rank_slot,
+                rank_of,
+                np.bool_(True),
+            )
             ret = ret + disc * r
             disc = disc * gamma
             k += 1
@@ -120,8 +285,22 @@ def _simulate_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp
         disc_out[i] = disc
         ended_out[i] = ended
         if not ended:
-            critic_features(s_time[0], s_x, s_y, s_px, s_py, s_tact, s_last, s_hp, s_tmove, s_tatk,
-                            num_agents, num_enemies, values, feats_out[i])
+            critic_features(
+                s_time[0],
+                s_x,
+                s_y,
+                s_px,
+                s_py,
+                s_tact,
+                s_last,
+                s_hp,
+                s_tmove,
+                s_tatk,
+                num_agents,
+                num_enemies,
+                values,
+                feats_out[i],
+            )
 
 
 @njit(cache=True, fastmath=True)
@@ -150,16 +329,29 @@ class NativeMLP:
 
     def __init__(self, variables: dict[str, Any], epsilon: float = 1e-5) -> None:
         params, stats = variables["params"], variables.get("batch_stats", {})
-        dense = sorted((k for k in params if k.startswith("Dense_")), key=lambda k: int(k.split("_")[1]))
+        dense = sorted(
+            (k for k in params if k.startswith("Dense_")), key=lambda k: int(k.split("_")[1])
+        )
         self.layers: list[tuple[np.ndarray, np.ndarray, bool]] = []
         for i, name in enumerate(dense):
             w = np.asarray(params[name]["kernel"], np.float32)
             b = np.asarray(params[name]["bias"], np.float32)
             bn = f"BatchNorm_{i}"
             if bn in params:
-                mul = np.asarray(params[bn]["scale"], np.float32) / np.sqrt(np.asarray(stats[bn]["var"], np.float32) + np.float32(epsilon))
-                shift = np.asarray(params[bn]["bias"], np.float32) - np.asarray(stats[bn]["mean"], np.float32) * mul
-                self.layers.append((np.ascontiguousarray(w * mul[None, :]), (b * mul + shift).astype(np.float32), True))
+                mul = np.asarray(params[bn]["scale"], np.float32) / np.sqrt(
+                    np.asarray(stats[bn]["var"], np.float32) + np.float32(epsilon)
+                )
+                shift = (
+                    np.asarray(params[bn]["bias"], np.float32)
+                    - np.asarray(stats[bn]["mean"], np.float32) * mul
+                )
+                self.layers.append(
+                    (
+                        np.ascontiguousarray(w * mul[None, :]),
+                        (b * mul + shift).astype(np.float32),
+                        True,
+                    )
+                )
             else:
                 self.layers.append((np.ascontiguousarray(w), b, False))
 
@@ -172,7 +364,9 @@ class NativeMLP:
         return h
 
 
-def native_support(task: Any, *, lookahead: int, continuation: str, demo_script: str | None) -> str | None:
+def native_support(
+    task: Any, *, lookahead: int, continuation: str, demo_script: str | None
+) -> str | None:
     """Why Alg. 1 cannot run natively for this task and Q estimate (None: it can)."""
     if getattr(task, "kind", None) != "combat":
         return f"the native Alg. 1 simulates combat only (this task is {task.kind!r})"
@@ -209,7 +403,16 @@ class NativeBRD:
     steps; ``value`` maps critic features ``[M, 35]`` to ``V`` ``[M]``.
     """
 
-    def __init__(self, task: Any, *, gamma: float, iterations: int, lookahead: int, continuation: str | None, seed: int = 0) -> None:
+    def __init__(
+        self,
+        task: Any,
+        *,
+        gamma: float,
+        iterations: int,
+        lookahead: int,
+        continuation: str | None,
+        seed: int = 0,
+    ) -> None:
         env = task.env
         rules = env.rules
         self.num_agents = int(env.num_agents)
@@ -226,7 +429,9 @@ class NativeBRD:
         self.walkable = np.array(rules.walkable, dtype=np.bool_, order="C", copy=True)
         self.seed = int(seed)
 
-    def simulate(self, batch: dict[str, np.ndarray], games: np.ndarray, joint: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def simulate(
+        self, batch: dict[str, np.ndarray], games: np.ndarray, joint: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(returns, discounts, ended, features)`` of the pairs ``(games[i], joint[i])``."""
         m = int(games.shape[0])
         ret = np.zeros(m, np.float32)
@@ -236,14 +441,37 @@ class NativeBRD:
         if m:
             chunks = max(1, min(m, numba.get_num_threads() * 4))
             simulate_candidates(
-                batch["fields"], batch["time"], batch["turn"], batch["stale"], batch["prev_hp_sum"], batch["init_hp0"],
-                self.walkable, games.astype(np.int64), joint.astype(np.int64), self.num_agents, self.num_enemies,
-                self.num_actions, self.enemy, self.continuation, self.steps, self.gamma, self.overkill_pass,
-                self.stalemate_limit, self.max_turns, self.seed, chunks, ret, disc, ended, feats,
+                batch["fields"],
+                batch["time"],
+                batch["turn"],
+                batch["stale"],
+                batch["prev_hp_sum"],
+                batch["init_hp0"],
+                self.walkable,
+                games.astype(np.int64),
+                joint.astype(np.int64),
+                self.num_agents,
+                self.num_enemies,
+                self.num_actions,
+                self.enemy,
+                self.continuation,
+                self.steps,
+                self.gamma,
+                self.overkill_pass,
+                self.stalemate_limit,
+                self.max_turns,
+                self.seed,
+                chunks,
+                ret,
+                disc,
+                ended,
+                feats,
             )
         return ret, disc, ended, feats
 
-    def q_values(self, batch: dict[str, np.ndarray], games: np.ndarray, joint: np.ndarray, value: Any) -> tuple[np.ndarray, float, float]:
+    def q_values(
+        self, batch: dict[str, np.ndarray], games: np.ndarray, joint: np.ndarray, value: Any
+    ) -> tuple[np.ndarray, float, float]:
         """Eq. 2's Q (or its K-step form) of each pair; and the seconds spent simulating and in
         the critic."""
         t0 = time.perf_counter()
@@ -256,7 +484,9 @@ class NativeBRD:
         t2 = time.perf_counter()
         return ret + disc * v, t1 - t0, t2 - t1
 
-    def __call__(self, states: Any, a_init: np.ndarray, legal: np.ndarray, value: Any) -> NativeBRDResult:
+    def __call__(
+        self, states: Any, a_init: np.ndarray, legal: np.ndarray, value: Any
+    ) -> NativeBRDResult:
         """Alg. 1 for B games (``states``: a batch of ``CombatState``, host or device arrays)."""
         batch = state_arrays(states)
         seconds = [0.0, 0.0]
@@ -272,7 +502,9 @@ class NativeBRD:
         return res
 
 
-def best_response_dynamics(q_pairs: Any, a_init: np.ndarray, legal: np.ndarray, iterations: int = 7) -> NativeBRDResult:
+def best_response_dynamics(
+    q_pairs: Any, a_init: np.ndarray, legal: np.ndarray, iterations: int = 7
+) -> NativeBRDResult:
     """``brd.best_response_dynamics`` on the host, for any ``q_pairs(games [M], joint [M, N]) ->
     Q [M]`` (the same schedule, rules and outputs; see ``brd``)."""
     legal = np.asarray(legal, bool)
@@ -328,8 +560,16 @@ def best_response_dynamics(q_pairs: Any, a_init: np.ndarray, legal: np.ndarray, 
         active = active & update & late
         sweep += int(update)
     return NativeBRDResult(
-        actions=act.astype(np.int32), q=qtab, q_valid=qval, q_init=q_init, q_final=qcur, sweeps=sweep,
-        changes=changes.astype(np.int32), visits=visits, evaluated=evaluated, simulated=simulated,
+        actions=act.astype(np.int32),
+        q=qtab,
+        q_valid=qval,
+        q_init=q_init,
+        q_final=qcur,
+        sweeps=sweep,
+        changes=changes.astype(np.int32),
+        visits=visits,
+        evaluated=evaluated,
+        simulated=simulated,
     )
 
 
@@ -340,4 +580,12 @@ def bucket(count: int, total: int, smallest: int = 64) -> int:
     return min(size, total)
 
 
-__all__ = ["NativeBRD", "NativeBRDResult", "NativeMLP", "best_response_dynamics", "bucket", "native_support", "simulate_candidates"]
+__all__ = [
+    "NativeBRD",
+    "NativeBRDResult",
+    "NativeMLP",
+    "best_response_dynamics",
+    "bucket",
+    "native_support",
+    "simulate_candidates",
+]

@@ -53,7 +53,17 @@ class CriticOptions(Options):
     """Phase 2 and the critic refits of Alg. 2 (Section 4.1, Eq. 3)."""
 
     # Host-side schedules and sizes: the compiled critic fit takes its step count as an argument.
-    RUN_ONLY = frozenset({"pretrain_critic", "pretrain_samples", "pretrain_trajectories", "e_update", "buffer_size", "critic_pretrain_steps", "critic_update_steps"})
+    RUN_ONLY = frozenset(
+        {
+            "pretrain_critic",
+            "pretrain_samples",
+            "pretrain_trajectories",
+            "e_update",
+            "buffer_size",
+            "critic_pretrain_steps",
+            "critic_update_steps",
+        }
+    )
 
     gamma: float = 0.995
     """Discount factor λ (Section 5.1)."""
@@ -201,7 +211,11 @@ def _paper(env: str) -> HybridConfig:
     if env == "traffic_junction":
         # Section 5.3: "Most hyper-parameters are the same ... E_Update = 100, and 20,000 samples".
         return HybridConfig().replace(
-            env=env, demonstrator="always-gas", e_update=100, pretrain_samples=20_000, buffer_size=20_000,
+            env=env,
+            demonstrator="always-gas",
+            e_update=100,
+            pretrain_samples=20_000,
+            buffer_size=20_000,
             brd_start="demonstrator",
         )
     return HybridConfig().replace(env=env, pretrain_trajectories=100_000, brd_start="demonstrator")
@@ -215,12 +229,22 @@ def _quick_paper(env: str) -> HybridConfig:
     base = _paper(env)
     if env == "traffic_junction":
         return base.replace(
-            total_episodes=1_500, num_envs=16, pretrain_samples=8_000, buffer_size=8_000,
-            critic_pretrain_steps=1_500, critic_update_steps=300, checkpoint_every=500,
+            total_episodes=1_500,
+            num_envs=16,
+            pretrain_samples=8_000,
+            buffer_size=8_000,
+            critic_pretrain_steps=1_500,
+            critic_update_steps=300,
+            checkpoint_every=500,
         )
     return base.replace(
-        total_episodes=3_000, num_envs=32, pretrain_trajectories=20_000, buffer_size=40_000,
-        critic_pretrain_steps=2_000, critic_update_steps=500, checkpoint_every=500,
+        total_episodes=3_000,
+        num_envs=32,
+        pretrain_trajectories=20_000,
+        buffer_size=40_000,
+        critic_pretrain_steps=2_000,
+        critic_update_steps=500,
+        checkpoint_every=500,
     )
 
 
@@ -231,13 +255,27 @@ def _cpu_base(env: str) -> HybridConfig:
     base = HybridConfig().replace(env=env)
     if env == "traffic_junction":
         return base.replace(
-            demonstrator="always-gas", total_episodes=1_500, num_envs=16, pretrain_samples=8_000, buffer_size=8_000,
-            critic_pretrain_steps=1_500, critic_update_steps=300, e_update=100, optimizer="adam", checkpoint_every=500,
+            demonstrator="always-gas",
+            total_episodes=1_500,
+            num_envs=16,
+            pretrain_samples=8_000,
+            buffer_size=8_000,
+            critic_pretrain_steps=1_500,
+            critic_update_steps=300,
+            e_update=100,
+            optimizer="adam",
+            checkpoint_every=500,
         )
     return base.replace(
-        total_episodes=3_000, num_envs=32, pretrain_samples=20_000, buffer_size=40_000,
-        critic_pretrain_steps=2_000, critic_update_steps=500, e_update=100,
-        optimizer="adam", checkpoint_every=500,
+        total_episodes=3_000,
+        num_envs=32,
+        pretrain_samples=20_000,
+        buffer_size=40_000,
+        critic_pretrain_steps=2_000,
+        critic_update_steps=500,
+        e_update=100,
+        optimizer="adam",
+        checkpoint_every=500,
     )
 
 
@@ -247,8 +285,12 @@ def _quick_rollout(env: str) -> HybridConfig:
     of Eq. 6) instead of r + λ V(s'); one best-response iteration; no critic. Budget: 400
     episodes (combat) or 300 (Traffic Junction), 16 games; the rest as 'quick-paper'."""
     return _cpu_base(env).replace(
-        lookahead_steps=0, brd_start="demonstrator", brd_iterations=1,
-        total_episodes=400 if env == "combat" else 300, num_envs=16, checkpoint_every=100,
+        lookahead_steps=0,
+        brd_start="demonstrator",
+        brd_iterations=1,
+        total_episodes=400 if env == "combat" else 300,
+        num_envs=16,
+        checkpoint_every=100,
         pretrain_critic=False,
     )
 
@@ -270,8 +312,14 @@ def _quick(env: str) -> HybridConfig:
     if env == "traffic_junction":
         return base
     return base.replace(
-        lookahead_steps=8, actor_target="best", actor_steps=4, lookahead_policy="demonstrator", num_envs=128,
-        total_episodes=3000, actor_average_from=1500, eval_every=150,
+        lookahead_steps=8,
+        actor_target="best",
+        actor_steps=4,
+        lookahead_policy="demonstrator",
+        num_envs=128,
+        total_episodes=3000,
+        actor_average_from=1500,
+        eval_every=150,
     )
 
 
@@ -279,10 +327,22 @@ def _toy(env: str) -> HybridConfig:
     """'toy', seconds: a smoke test of the whole pipeline (tests, CI): 8 episodes, 4 games,
     tiny networks, no learning."""
     return _cpu_base(env).replace(
-        total_episodes=8, num_envs=4, chunk_steps=4, pretrain_samples=64, buffer_size=512,
-        critic_pretrain_steps=10, critic_update_steps=5, e_update=4, brd_iterations=2,
-        actor_hidden=(16, 16, 16), critic_hidden=(16, 8, 8), checkpoint_every=4, eval_episodes=8,
-        bc_steps=20, demo_observations=64, tensorboard=False,
+        total_episodes=8,
+        num_envs=4,
+        chunk_steps=4,
+        pretrain_samples=64,
+        buffer_size=512,
+        critic_pretrain_steps=10,
+        critic_update_steps=5,
+        e_update=4,
+        brd_iterations=2,
+        actor_hidden=(16, 16, 16),
+        critic_hidden=(16, 8, 8),
+        checkpoint_every=4,
+        eval_episodes=8,
+        bc_steps=20,
+        demo_observations=64,
+        tensorboard=False,
     )
 
 
@@ -311,5 +371,12 @@ PRESETS = {
 
 
 __all__ = [
-    "PRESETS", "ActorOptions", "BRDOptions", "BudgetOptions", "CloneOptions", "CriticOptions", "HybridConfig", "NetworkOptions",
+    "PRESETS",
+    "ActorOptions",
+    "BRDOptions",
+    "BudgetOptions",
+    "CloneOptions",
+    "CriticOptions",
+    "HybridConfig",
+    "NetworkOptions",
 ]

@@ -64,10 +64,16 @@ class Learner:
         self.demo_chunk = jax.jit(functools.partial(self._demo_chunk, steps=cfg.chunk_steps))
         self.train_chunk = jax.jit(
             functools.partial(
-                self._train_chunk, steps=cfg.chunk_steps, gamma=cfg.gamma,
-                iterations=cfg.brd_iterations, start=cfg.brd_start, continuation=continuation_policy(cfg),
+                self._train_chunk,
+                steps=cfg.chunk_steps,
+                gamma=cfg.gamma,
+                iterations=cfg.brd_iterations,
+                start=cfg.brd_start,
+                continuation=continuation_policy(cfg),
                 lookahead=simulated_steps(cfg),
-                actor_steps=cfg.actor_steps, target=cfg.actor_target, work_batch=cfg.brd_work_batch,
+                actor_steps=cfg.actor_steps,
+                target=cfg.actor_target,
+                work_batch=cfg.brd_work_batch,
             )
         )
         self.fit_critic = jax.jit(functools.partial(self._fit_critic, batch=cfg.critic_batch_size))
@@ -84,16 +90,25 @@ class Learner:
 
             lookahead = simulated_steps(cfg)
             self.native_brd = NativeBRD(
-                task, gamma=cfg.gamma, iterations=cfg.brd_iterations, lookahead=lookahead,
+                task,
+                gamma=cfg.gamma,
+                iterations=cfg.brd_iterations,
+                lookahead=lookahead,
                 continuation=demo_script if lookahead > 1 else None,
             )
             self._native_pre = jax.jit(functools.partial(self._native_pre_fn, start=cfg.brd_start))
-            self._native_post = jax.jit(functools.partial(self._native_post_fn, actor_steps=cfg.actor_steps, target=cfg.actor_target))
+            self._native_post = jax.jit(
+                functools.partial(
+                    self._native_post_fn, actor_steps=cfg.actor_steps, target=cfg.actor_target
+                )
+            )
             self._chunk_steps = cfg.chunk_steps
             self.train_chunk = self._train_chunk_native
             # Phase 2 with a script A^D plays on the native engine too (same chunk, same pool).
             if demo_script is not None and native_rollout_support(task, demo_script) is None:
-                self.demo_chunk = NativeScriptRollout(task, demo_script, num_envs=cfg.num_envs, steps=cfg.chunk_steps)
+                self.demo_chunk = NativeScriptRollout(
+                    task, demo_script, num_envs=cfg.num_envs, steps=cfg.chunk_steps
+                )
 
     # Phase 2's data: A^D plays from random start states.
     def _demo_chunk(self, pool: Pool, clone_vars: Any, *, steps: int):
@@ -114,7 +129,17 @@ class Learner:
         return self.value_fn(critic_vars)(states)
 
     # Eq. 3 on the buffer B: minibatch SGD on (V(s) - V^D(s))^2.
-    def _fit_critic(self, critic: nets.NetState, states: Any, returns: jax.Array, size: jax.Array, key: jax.Array, num_steps: jax.Array, *, batch: int):
+    def _fit_critic(
+        self,
+        critic: nets.NetState,
+        states: Any,
+        returns: jax.Array,
+        size: jax.Array,
+        key: jax.Array,
+        num_steps: jax.Array,
+        *,
+        batch: int,
+    ):
         mod, tx, task = self.critic_mod, self.critic_tx, self.task
 
         def one(i, c):
@@ -134,8 +159,19 @@ class Learner:
 
     # Eq. 8 (or the cross-entropy toward ã_g): 'actor_steps' SGD steps on the rows of weight 1
     # (batch norm's statistics over those rows only); no update when no row has weight.
-    def _update_actor(self, actor: nets.NetState, x: jax.Array, legal: jax.Array, best: jax.Array, adv: jax.Array, w: jax.Array,
-                      lr_scale: ArrayLike | None, *, actor_steps: int, target: str):
+    def _update_actor(
+        self,
+        actor: nets.NetState,
+        x: jax.Array,
+        legal: jax.Array,
+        best: jax.Array,
+        adv: jax.Array,
+        w: jax.Array,
+        lr_scale: ArrayLike | None,
+        *,
+        actor_steps: int,
+        target: str,
+    ):
         mod, tx = self.actor_mod, self.actor_tx
         any_w = jnp.any(w)
         bn_mask = jnp.where(any_w, w, jnp.ones_like(w))
@@ -157,7 +193,16 @@ class Learner:
         return jax.tree.map(lambda a, b: jnp.where(any_w, a, b), new, actor), loss
 
     # Phase 3, K steps of Alg. 2 for all B games.
-    def brd_q_fn(self, actor: Any, critic_vars: Any, clone_vars: Any, *, gamma: float, lookahead: int, continuation: str):
+    def brd_q_fn(
+        self,
+        actor: Any,
+        critic_vars: Any,
+        clone_vars: Any,
+        *,
+        gamma: float,
+        lookahead: int,
+        continuation: str,
+    ):
         """Alg. 1's Q estimate for B games: ``lookahead`` simulated steps (1: Eq. 2's one step;
         ``TO_THE_END``: to the end, critic unused), the later ones played by ``continuation``
         (``actor``: the actor's legal argmax; ``demonstrator``: A^D, the script or the clone)."""
@@ -172,38 +217,105 @@ class Learner:
                 return jax.vmap(self.demo_script_fn)(keys, flat_states).astype(jnp.int32)
             fobs = jax.vmap(task.observe)(flat_states)
             flegal = jax.vmap(task.avail)(flat_states)
-            return nets.actor_actions(mod, actor if continuation == "actor" else clone_vars, fobs, flegal)
+            return nets.actor_actions(
+                mod, actor if continuation == "actor" else clone_vars, fobs, flegal
+            )
 
-        value_fn = self.value_fn(critic_vars) if lookahead < TO_THE_END else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
-        return make_q_fn(task.lookahead, value_fn, gamma, steps=lookahead, policy_fn=policy, batch_step_fn=batch_step_fn)
+        value_fn = (
+            self.value_fn(critic_vars)
+            if lookahead < TO_THE_END
+            else (lambda s: jnp.zeros(jax.tree.leaves(s)[0].shape[0]))
+        )
+        return make_q_fn(
+            task.lookahead,
+            value_fn,
+            gamma,
+            steps=lookahead,
+            policy_fn=policy,
+            batch_step_fn=batch_step_fn,
+        )
 
-    def _train_chunk(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, lr_scale: ArrayLike | None = None, *, steps: int, gamma: float, iterations: int, start: str, continuation: str, lookahead: int, actor_steps: int, target: str, work_batch: int):
+    def _train_chunk(
+        self,
+        pool: Pool,
+        actor: nets.NetState,
+        critic_vars: Any,
+        clone_vars: Any,
+        lr_scale: ArrayLike | None = None,
+        *,
+        steps: int,
+        gamma: float,
+        iterations: int,
+        start: str,
+        continuation: str,
+        lookahead: int,
+        actor_steps: int,
+        target: str,
+        work_batch: int,
+    ):
         task, b, mod = self.task, self.b, self.actor_mod
 
         def act(actor, key, states, obs, legal):
-            q_fn = self.brd_q_fn(actor, critic_vars, clone_vars, gamma=gamma, lookahead=lookahead, continuation=continuation)
+            q_fn = self.brd_q_fn(
+                actor,
+                critic_vars,
+                clone_vars,
+                gamma=gamma,
+                lookahead=lookahead,
+                continuation=continuation,
+            )
             k_demo, k_sim = jax.random.split(key)
             n, na = legal.shape[1], legal.shape[2]
             a_actor = nets.actor_actions(mod, actor, obs, legal)
             # Alg. 1 from the actor's actions (Section 4.3) or from A^D.
-            a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, states, obs, legal)
-            res = best_response_dynamics(q_fn, jax.random.split(k_sim, b), states, a0, legal, iterations, work_batch=work_batch)
+            a0 = (
+                a_actor
+                if start == "actor"
+                else self.demo_act(clone_vars, k_demo, states, obs, legal)
+            )
+            res = best_response_dynamics(
+                q_fn,
+                jax.random.split(k_sim, b),
+                states,
+                a0,
+                legal,
+                iterations,
+                work_batch=work_batch,
+            )
             # Eq. 7: advantage of every legal action of every agent that has a choice.
             adv = advantages(res.q, legal)
             weight = res.q_valid & (jnp.sum(legal, -1) >= 2)
             flat_w = weight.reshape(-1)
             actor, loss = self._update_actor(
-                actor, obs.reshape(b * n, -1), legal.reshape(b * n, na), res.actions.reshape(b * n), adv.reshape(b * n, na),
-                flat_w, lr_scale, actor_steps=actor_steps, target=target,
+                actor,
+                obs.reshape(b * n, -1),
+                legal.reshape(b * n, na),
+                res.actions.reshape(b * n),
+                adv.reshape(b * n, na),
+                flat_w,
+                lr_scale,
+                actor_steps=actor_steps,
+                target=target,
             )
             # Perform the updated actor's legal argmax (Alg. 2).
             actions = nets.actor_actions(mod, actor, obs, legal)
-            aux = step_aux(loss, res.sweeps, res.evaluated, res.simulated, res.changes, res.q_init, res.q_final, adv, a_actor, res.actions, weight)
+            aux = step_aux(
+                loss,
+                res.sweeps,
+                res.evaluated,
+                res.simulated,
+                res.changes,
+                res.q_init,
+                res.q_final,
+                adv,
+                a_actor,
+                res.actions,
+                weight,
+            )
             return actions, actor, aux
 
         pool, actor, out = pool_steps(task, act, pool, actor, steps)
         return pool, actor, out
-
 
     # Phase 3 on the native engine: a host loop over the chunk's env steps.
     def _native_pre_fn(self, pool: Pool, actor: nets.NetState, clone_vars: Any, *, start: str):
@@ -214,12 +326,30 @@ class Learner:
         legal = jax.vmap(self.task.avail)(pool.states)
         k_demo, _ = jax.random.split(k_act)
         a_actor = nets.actor_actions(self.actor_mod, actor, pool.obs, legal)
-        a0 = a_actor if start == "actor" else self.demo_act(clone_vars, k_demo, pool.states, pool.obs, legal)
+        a0 = (
+            a_actor
+            if start == "actor"
+            else self.demo_act(clone_vars, k_demo, pool.states, pool.obs, legal)
+        )
         return jax.random.key_data(key), k_step, k_reset, legal, a_actor, a0
 
-    def _native_post_fn(self, pool: Pool, actor: nets.NetState, key_data: jax.Array, k_step: jax.Array, k_reset: jax.Array,
-                        legal: jax.Array, a_actor: jax.Array, brd: dict[str, jax.Array], rows: jax.Array, valid: jax.Array,
-                        lr_scale: ArrayLike | None, *, actor_steps: int, target: str):
+    def _native_post_fn(
+        self,
+        pool: Pool,
+        actor: nets.NetState,
+        key_data: jax.Array,
+        k_step: jax.Array,
+        k_reset: jax.Array,
+        legal: jax.Array,
+        a_actor: jax.Array,
+        brd: dict[str, jax.Array],
+        rows: jax.Array,
+        valid: jax.Array,
+        lr_scale: ArrayLike | None,
+        *,
+        actor_steps: int,
+        target: str,
+    ):
         """Eq. 7, the actor's update (Eq. 8, or cross-entropy toward ã_g) on the gathered rows of
         the agents with a choice, the updated actor's legal argmax, the env step and resets."""
         task, mod = self.task, self.actor_mod
@@ -228,29 +358,61 @@ class Learner:
         adv = advantages(brd["q"], legal)
         weight = brd["q_valid"] & (jnp.sum(legal, -1) >= 2)
         actor, loss = self._update_actor(
-            actor, obs.reshape(b * n, -1)[rows], legal.reshape(b * n, na)[rows], brd["actions"].reshape(b * n)[rows],
-            adv.reshape(b * n, na)[rows], valid, lr_scale, actor_steps=actor_steps, target=target,
+            actor,
+            obs.reshape(b * n, -1)[rows],
+            legal.reshape(b * n, na)[rows],
+            brd["actions"].reshape(b * n)[rows],
+            adv.reshape(b * n, na)[rows],
+            valid,
+            lr_scale,
+            actor_steps=actor_steps,
+            target=target,
         )
         actions = nets.actor_actions(mod, actor, obs, legal)
         # The env step and the resets of 'pool_steps'.
-        obs2, s2, r, d, info = jax.vmap(task.step)(jax.random.split(k_step, b), pool.states, actions)
+        obs2, s2, r, d, info = jax.vmap(task.step)(
+            jax.random.split(k_step, b), pool.states, actions
+        )
         stats = jax.vmap(task.episode_stats)(s2, info)
         obs_r, s_r = jax.vmap(task.reset)(jax.random.split(k_reset, b))
         pool2 = Pool(states=select_tree(d, s_r, s2), obs=select_tree(d, obs_r, obs2), key=key_data)
-        aux = step_aux(loss, brd["sweeps"], brd["evaluated"], brd["simulated"], brd["changes"], brd["q_init"], brd["q_final"], adv, a_actor, brd["actions"], weight)
+        aux = step_aux(
+            loss,
+            brd["sweeps"],
+            brd["evaluated"],
+            brd["simulated"],
+            brd["changes"],
+            brd["q_init"],
+            brd["q_final"],
+            adv,
+            a_actor,
+            brd["actions"],
+            weight,
+        )
         out = {"state": pool.states, "reward": r, "done": d, "stats": stats, "aux": aux}
         return pool2, actor, out
 
-    def _train_chunk_native(self, pool: Pool, actor: nets.NetState, critic_vars: Any, clone_vars: Any, lr_scale: ArrayLike | None = None):
+    def _train_chunk_native(
+        self,
+        pool: Pool,
+        actor: nets.NetState,
+        critic_vars: Any,
+        clone_vars: Any,
+        lr_scale: ArrayLike | None = None,
+    ):
         """'train_chunk' on the native engine: the same steps, one host call of Alg. 1 each."""
         from hybridmarl.algos.hybrid.brd_native import NativeMLP, bucket
 
-        value = None if self.native_brd.steps >= TO_THE_END else NativeMLP(jax.device_get(critic_vars))
+        value = (
+            None if self.native_brd.steps >= TO_THE_END else NativeMLP(jax.device_get(critic_vars))
+        )
         outs = []
         timing = self.timing
         for _ in range(self._chunk_steps):
             t0 = time.perf_counter()
-            key_data, k_step, k_reset, legal, a_actor, a0 = self._native_pre(pool, actor, clone_vars)
+            key_data, k_step, k_reset, legal, a_actor, a0 = self._native_pre(
+                pool, actor, clone_vars
+            )
             legal_np, a0_np, states_np = jax.device_get((legal, a0, pool.states))
             t1 = time.perf_counter()
             res = self.native_brd(states_np, a0_np, legal_np, value)
@@ -262,22 +424,37 @@ class Learner:
             rows[: flat.size] = flat
             valid = np.arange(size) < flat.size
             brd = {
-                "actions": res.actions, "q": res.q, "q_valid": res.q_valid, "q_init": res.q_init,
-                "q_final": res.q_final, "changes": res.changes, "sweeps": np.float32(res.sweeps),
-                "evaluated": np.float32(res.evaluated), "simulated": np.float32(res.simulated),
+                "actions": res.actions,
+                "q": res.q,
+                "q_valid": res.q_valid,
+                "q_init": res.q_init,
+                "q_final": res.q_final,
+                "changes": res.changes,
+                "sweeps": np.float32(res.sweeps),
+                "evaluated": np.float32(res.evaluated),
+                "simulated": np.float32(res.simulated),
             }
-            pool, actor, out = self._native_post(pool, actor, key_data, k_step, k_reset, legal, a_actor, brd, rows, valid, lr_scale)
+            pool, actor, out = self._native_post(
+                pool, actor, key_data, k_step, k_reset, legal, a_actor, brd, rows, valid, lr_scale
+            )
             outs.append(jax.device_get(out))
             t3 = time.perf_counter()
-            for k, v in (("host_in", t1 - t0), ("brd", t2 - t1), ("brd_simulation", res.seconds_simulation),
-                         ("brd_critic", res.seconds_critic), ("update_and_step", t3 - t2)):
+            for k, v in (
+                ("host_in", t1 - t0),
+                ("brd", t2 - t1),
+                ("brd_simulation", res.seconds_simulation),
+                ("brd_critic", res.seconds_critic),
+                ("update_and_step", t3 - t2),
+            ):
                 timing[k] = timing.get(k, 0.0) + v
             timing["steps"] = timing.get("steps", 0.0) + 1
         stacked = jax.tree.map(lambda *xs: np.stack(xs), *outs)
         return pool, actor, stacked
 
 
-def step_aux(loss, sweeps, evaluated, simulated, changes, q_init, q_final, adv, a_actor, actions, weight) -> dict[str, jax.Array]:
+def step_aux(
+    loss, sweeps, evaluated, simulated, changes, q_init, q_final, adv, a_actor, actions, weight
+) -> dict[str, jax.Array]:
     """The per-step diagnostics of Alg. 1 and the actor update that 'train.csv' logs."""
     b = weight.shape[0]
     wf = weight.astype(jnp.float32)
@@ -321,7 +498,12 @@ def resolve_brd_engine(task: Task, cfg: HybridConfig, demo_script: str | None) -
     from hybridmarl.algos.hybrid.brd_native import native_support
     from hybridmarl.engine.backend import resolve_engine
 
-    why = native_support(task, lookahead=simulated_steps(cfg), continuation=continuation_policy(cfg), demo_script=demo_script)
+    why = native_support(
+        task,
+        lookahead=simulated_steps(cfg),
+        continuation=continuation_policy(cfg),
+        demo_script=demo_script,
+    )
     if cfg.engine == "native":
         if why:
             raise ValueError(f"--engine native: {why}")
@@ -342,4 +524,11 @@ def _cached_learner(task: Task, key: HybridConfig, demo_script: str | None) -> L
     return Learner(task, key, demo_script)
 
 
-__all__ = ["TO_THE_END", "Learner", "build_learner", "continuation_policy", "resolve_brd_engine", "simulated_steps"]
+__all__ = [
+    "TO_THE_END",
+    "Learner",
+    "build_learner",
+    "continuation_policy",
+    "resolve_brd_engine",
+    "simulated_steps",
+]

@@ -70,12 +70,26 @@ class HybridState(RunState):
     critic_updates: int = 0
     next_critic_update: int = 0
     critic_loss: float = float("nan")
-    average: Any = None  # {"params", "batch_stats"}: the actor's running average (actor_average_from)
+    average: Any = (
+        None  # {"params", "batch_stats"}: the actor's running average (actor_average_from)
+    )
     average_count: int = 0
 
-    TREES: ClassVar[dict[str, str]] = {"actor": "actor", AVERAGE_PREFIX: "average", "critic": "critic", "clone": "clone"}
+    TREES: ClassVar[dict[str, str]] = {
+        "actor": "actor",
+        AVERAGE_PREFIX: "average",
+        "critic": "critic",
+        "clone": "clone",
+    }
     BUFFERS: ClassVar[dict[str, str]] = {"buffer": "buffer"}
-    COUNTERS: ClassVar[tuple[str, ...]] = (*RunState.COUNTERS, "iterations", "critic_updates", "next_critic_update", "critic_loss", "average_count")
+    COUNTERS: ClassVar[tuple[str, ...]] = (
+        *RunState.COUNTERS,
+        "iterations",
+        "critic_updates",
+        "next_critic_update",
+        "critic_loss",
+        "average_count",
+    )
 
     def policy_vars(self) -> Any:
         """The run's policy: the actor's weight average once it has begun, else the actor."""
@@ -108,7 +122,9 @@ def _vars(net: nets.NetState | None) -> Any:
     return None if net is None else {"params": net.params, "batch_stats": net.batch_stats}
 
 
-def one_state_per_episode(states: dict[str, np.ndarray], returns: np.ndarray, rng: np.random.Generator) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def one_state_per_episode(
+    states: dict[str, np.ndarray], returns: np.ndarray, rng: np.random.Generator
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """From the rows of finished episodes ('EpisodeAssembler.add': grouped by 'episode_key'),
     one row per episode, drawn uniformly."""
     keys = np.asarray(states["episode_key"])
@@ -128,7 +144,9 @@ def train(cfg: HybridConfig) -> TrainResult:
     with Run(ALGO, cfg) as run:
         # ---- Phase 0: set-up ------------------------------------------------------------------------
         task, spec = run.task, run.spec
-        dataset = D.load_dataset(cfg.demonstrator, expect=task) if cfg.demonstrator_is_dataset() else None
+        dataset = (
+            D.load_dataset(cfg.demonstrator, expect=task) if cfg.demonstrator_is_dataset() else None
+        )
         demo_script = None if dataset is not None else cfg.demonstrator_name()
         learner = build_learner(task, cfg, demo_script)
         if learner.engine_note:
@@ -137,31 +155,71 @@ def train(cfg: HybridConfig) -> TrainResult:
         actor = nets.init_net(learner.actor_mod, k_actor, task.obs_dim, learner.actor_tx)
         critic = nets.init_net(learner.critic_mod, k_critic, task.critic_dim, learner.critic_tx)
         needs_clone = demo_script is None or cfg.actor_init == "clone"
-        clone = nets.init_net(learner.actor_mod, k_clone, task.obs_dim, learner.actor_tx) if needs_clone else None
+        clone = (
+            nets.init_net(learner.actor_mod, k_clone, task.obs_dim, learner.actor_tx)
+            if needs_clone
+            else None
+        )
         st = HybridState(
-            actor=actor, critic=critic, clone=clone, pool=new_pool(task, k_pool, cfg.num_envs), key=key_data(k_run),
-            buffer=ReplayBuffer(cfg.buffer_size, task.state_template()), assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma),
+            actor=actor,
+            critic=critic,
+            clone=clone,
+            pool=new_pool(task, k_pool, cfg.num_envs),
+            key=key_data(k_run),
+            buffer=ReplayBuffer(cfg.buffer_size, task.state_template()),
+            assembler=EpisodeAssembler(cfg.num_envs, cfg.gamma),
             next_critic_update=cfg.e_update,
         )
         run.start(
-            st, learner.actor_mod, st.policy_vars, lambda: prefixed(flatten_named(st.policy_vars()), "actor"),
-            networks={"actor_params": nets.num_params(actor.params), "critic_params": nets.num_params(critic.params)},
+            st,
+            learner.actor_mod,
+            st.policy_vars,
+            lambda: prefixed(flatten_named(st.policy_vars()), "actor"),
+            networks={
+                "actor_params": nets.num_params(actor.params),
+                "critic_params": nets.num_params(critic.params),
+            },
         )
 
         if st.phase == "pretrain":
             # ---- Phase 1: the demonstrator A^D (Section 3) ------------------------------------------
             if needs_clone:
                 if dataset is None:
-                    dataset = D.collect(spec, cfg.demonstrator_name(), cfg.demo_observations, seed=cfg.seed, gamma=cfg.gamma, engine=cfg.engine)
+                    dataset = D.collect(
+                        spec,
+                        cfg.demonstrator_name(),
+                        cfg.demo_observations,
+                        seed=cfg.seed,
+                        gamma=cfg.gamma,
+                        engine=cfg.engine,
+                    )
                 rows = D.bc_rows(dataset)
                 assert st.clone is not None
-                st.clone, losses = D.fit_bc(st.clone, learner.actor_mod, (cfg.optimizer, cfg.actor_lr), rows, st.next_key(), cfg.bc_steps, cfg.bc_batch_size)
-                check_finite("behavioural-cloning loss", float(losses[-1]) if losses.size else 0.0, "the end of cloning")
+                st.clone, losses = D.fit_bc(
+                    st.clone,
+                    learner.actor_mod,
+                    (cfg.optimizer, cfg.actor_lr),
+                    rows,
+                    st.next_key(),
+                    cfg.bc_steps,
+                    cfg.bc_batch_size,
+                )
+                check_finite(
+                    "behavioural-cloning loss",
+                    float(losses[-1]) if losses.size else 0.0,
+                    "the end of cloning",
+                )
                 acc = D.bc_accuracy(st.clone, learner.actor_mod, rows)
                 role = "A^D" if demo_script is None else "θ^D (the actor's start)"
-                print(f"{role} = behavioural clone of {dataset.size} observations: final loss {losses[-1]:.4f}, accuracy {acc:.3f}")
+                print(
+                    f"{role} = behavioural clone of {dataset.size} observations: final loss {losses[-1]:.4f}, accuracy {acc:.3f}"
+                )
                 if cfg.actor_init == "clone":
-                    st.actor = st.actor.replace(params=st.clone.params, batch_stats=st.clone.batch_stats, opt_state=learner.actor_tx.init(st.clone.params))
+                    st.actor = st.actor.replace(
+                        params=st.clone.params,
+                        batch_stats=st.clone.batch_stats,
+                        opt_state=learner.actor_tx.init(st.clone.params),
+                    )
             # ---- Phase 2: critic pre-training (Section 4.1, Eq. 3) ------------------------------------
             per_trajectory = cfg.pretrain_trajectories > 0
             wanted = cfg.pretrain_trajectories if per_trajectory else cfg.pretrain_samples
@@ -184,7 +242,12 @@ def train(cfg: HybridConfig) -> TrainResult:
                         stats_all.setdefault(k, []).extend(v.tolist())
                 st.demo_stats = {k: float(np.mean(v)) for k, v in stats_all.items() if v}
                 st.demo_stats["episodes"] = float(len(next(iter(stats_all.values()), [])))
-                st.critic, closs = learner.fit_critic(st.critic, *st.buffer.device_arrays(), st.next_key(), jnp.asarray(cfg.critic_pretrain_steps))
+                st.critic, closs = learner.fit_critic(
+                    st.critic,
+                    *st.buffer.device_arrays(),
+                    st.next_key(),
+                    jnp.asarray(cfg.critic_pretrain_steps),
+                )
                 st.critic_loss = float(closs)
                 check_finite("critic pre-training loss", st.critic_loss, "pre-training")
                 print(
@@ -202,7 +265,11 @@ def train(cfg: HybridConfig) -> TrainResult:
                 # B games x chunk_steps steps of Alg. 1, Eq. 7, Eq. 8 and the env, compiled.
                 scale = actor_lr_scale(cfg, st.episodes)
                 st.pool, st.actor, out = learner.train_chunk(
-                    st.pool, st.actor, _vars(st.critic), _vars(st.clone), None if scale is None else np.float32(scale),
+                    st.pool,
+                    st.actor,
+                    _vars(st.critic),
+                    _vars(st.clone),
+                    None if scale is None else np.float32(scale),
                 )
                 states, returns, stats = st.assembler.add(out)
                 st.buffer.add(states, returns)
@@ -213,7 +280,12 @@ def train(cfg: HybridConfig) -> TrainResult:
                 check_finite("actor parameters", st.actor.params, f"episode {st.episodes}")
                 # Every E_Update episodes: refit the critic on B (Eq. 3).
                 if st.episodes >= st.next_critic_update and cfg.lookahead_steps != 0:
-                    st.critic, closs = learner.fit_critic(st.critic, *st.buffer.device_arrays(), st.next_key(), jnp.asarray(cfg.critic_update_steps))
+                    st.critic, closs = learner.fit_critic(
+                        st.critic,
+                        *st.buffer.device_arrays(),
+                        st.next_key(),
+                        jnp.asarray(cfg.critic_update_steps),
+                    )
                     st.critic_loss = float(closs)
                     st.critic_updates += 1
                     st.next_critic_update = (st.episodes // cfg.e_update + 1) * cfg.e_update
@@ -223,25 +295,53 @@ def train(cfg: HybridConfig) -> TrainResult:
                 if cfg.actor_average_from is not None and st.episodes >= cfg.actor_average_from:
                     st.average_count += 1
                     cur = _vars(st.actor)
-                    st.average = cur if st.average_count == 1 else _running_mean(st.average, cur, jnp.asarray(st.average_count, jnp.float32))
-                critic_status = "-" if np.isnan(st.critic_loss) else f"{st.critic_loss:.4f}"  # '-': not fitted yet (w/o D)
+                    st.average = (
+                        cur
+                        if st.average_count == 1
+                        else _running_mean(
+                            st.average, cur, jnp.asarray(st.average_count, jnp.float32)
+                        )
+                    )
+                critic_status = (
+                    "-" if np.isnan(st.critic_loss) else f"{st.critic_loss:.4f}"
+                )  # '-': not fitted yet (w/o D)
                 run.log_chunk(
-                    {"iteration": st.iterations, **aux, "critic_loss": st.critic_loss, "critic_updates": st.critic_updates,
-                     **({} if scale is None else {"actor_lr_scale": scale})},
-                    f"critic {critic_status}", per_second={"env_steps_per_s": cfg.chunk_steps * cfg.num_envs},
+                    {
+                        "iteration": st.iterations,
+                        **aux,
+                        "critic_loss": st.critic_loss,
+                        "critic_updates": st.critic_updates,
+                        **({} if scale is None else {"actor_lr_scale": scale}),
+                    },
+                    f"critic {critic_status}",
+                    per_second={"env_steps_per_s": cfg.chunk_steps * cfg.num_envs},
                 )
         if run.time_limited:
-            print(f"time limit of {cfg.time_limit_min:g} min reached after {st.episodes} episodes: stopping Alg. 2 there")
+            print(
+                f"time limit of {cfg.time_limit_min:g} min reached after {st.episodes} episodes: stopping Alg. 2 there"
+            )
         sps = (st.env_steps - steps_at_start) / max(time.time() - t_phase, 1e-9)
 
         # ---- Phase 4: evaluation (Section 5.1) --------------------------------------------------------
-        last = {"last_actor": run.evaluate(_vars(st.actor)), "average_of": st.average_count} if st.average_count > 0 else {}
+        last = (
+            {"last_actor": run.evaluate(_vars(st.actor)), "average_of": st.average_count}
+            if st.average_count > 0
+            else {}
+        )
         n_avg = st.average_count
         return run.finish(
-            {"time_limited": run.time_limited, "env_steps_per_s": sps}, before=last,
+            {"time_limited": run.time_limited, "env_steps_per_s": sps},
+            before=last,
             baseline=st.demo_stats.get(task.progress_metrics[1]),
             note=f"  (the actor's weight average over {n_avg} chunks)" if n_avg else "",
-            lines=lambda r: ["the last actor: " + task.result_line({**r, **r["last_actor"]}).removeprefix("eval ")] if n_avg else [],
+            lines=lambda r: (
+                [
+                    "the last actor: "
+                    + task.result_line({**r, **r["last_actor"]}).removeprefix("eval ")
+                ]
+                if n_avg
+                else []
+            ),
         )
 
 

@@ -192,7 +192,9 @@ def prepare_turn(t, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walk
                 md = MOVE_DIST[ut, _clip(t_attack[p, s] - t, 0, MAX_T_ATK)]
                 mdist[p, s] = md
                 for d in range(4):
-                    move_ok[p, s, d] = _walkable(walkable, x[p, s] + md * DIR_X[d], y[p, s] + md * DIR_Y[d])
+                    move_ok[p, s, d] = _walkable(
+                        walkable, x[p, s] + md * DIR_X[d], y[p, s] + md * DIR_Y[d]
+                    )
     return n_acting
 
 
@@ -423,7 +425,11 @@ def choose_actions(script, p, utype, x, y, hp, rng_base, ws):
                     best = k
         weakest = min(best & SLOT_MASK, n - 1)
     attack_family = script <= ATTACK_DPS or script == KITER or script == KITER_DPS
-    kind = 0 if (script == ATTACK_CLOSEST or script == KITER) else (1 if script == ATTACK_WEAKEST else 2)
+    kind = (
+        0
+        if (script == ATTACK_CLOSEST or script == KITER)
+        else (1 if script == ATTACK_WEAKEST else 2)
+    )
     kites = script == KITER or script == KITER_DPS or script == KITER_NOKDPS
     # Each helper has one call site below, so inlining them all keeps the kernel small.
     for u in range(n):
@@ -472,7 +478,9 @@ def choose_actions(script, p, utype, x, y, hp, rng_base, ws):
 
 
 @njit(cache=True, inline="always")
-def _apply_player(p, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, overkill_pass, ws):
+def _apply_player(
+    p, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, overkill_pass, ws
+):
     """``GameState::makeMoves`` for one side: timers, moves, and the damage it deals (added to
     ws damage-taken of the enemy; HP changes wait until both sides have acted)."""
     mdist, actions, acting, damage_taken = ws[3], ws[4], ws[6], ws[11]
@@ -545,7 +553,26 @@ def _apply_player(p, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_att
 
 
 @njit(cache=True, inline="always")
-def apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev_hp_sum, overkill_pass, ws):
+def apply_turn(
+    g,
+    utype,
+    uid,
+    x,
+    y,
+    px,
+    py,
+    t_act,
+    last,
+    hp,
+    t_move,
+    t_attack,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    overkill_pass,
+    ws,
+):
     """``apply_actions`` + ``finish_turn`` for game ``g`` (views [2, U] of its unit fields), with
     the actions in ``ws`` and the context from ``prepare_turn``."""
     damage_taken = ws[11]
@@ -554,8 +581,12 @@ def apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, t
     for p in range(2):
         for s in range(n):
             damage_taken[p, s] = 0
-    _apply_player(1, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, overkill_pass, ws)
-    _apply_player(0, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, overkill_pass, ws)
+    _apply_player(
+        1, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, overkill_pass, ws
+    )
+    _apply_player(
+        0, t, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, overkill_pass, ws
+    )
     same = True
     for p in range(2):
         total = 0
@@ -566,7 +597,9 @@ def apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, t
         if total != prev_hp_sum[g, p]:
             same = False
         prev_hp_sum[g, p] = total
-    nxt = min(minimum_free_time(hp, t_move, t_attack, 0), minimum_free_time(hp, t_move, t_attack, 1))
+    nxt = min(
+        minimum_free_time(hp, t_move, t_attack, 0), minimum_free_time(hp, t_move, t_attack, 1)
+    )
     if nxt < INF:
         time[g] = nxt
     turn[g] += 1
@@ -657,9 +690,34 @@ def _rng_base(seed, game_id, turn):
 
 
 @njit_without_refcount
-def play_game(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-              prev_hp_sum, walkable, script0, script1, overkill_pass, stalemate_limit, max_turns,
-              turn_budget, seed, game_id, ws):
+def play_game(
+    g,
+    utype,
+    uid,
+    x,
+    y,
+    px,
+    py,
+    t_act,
+    last,
+    hp,
+    t_move,
+    t_attack,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    walkable,
+    script0,
+    script1,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    turn_budget,
+    seed,
+    game_id,
+    ws,
+):
     """Play game ``g`` (views [2, U] of its unit fields) until it is over or has played
     ``turn_budget`` turns (-1: no budget). Returns the number of unit actions issued.
 
@@ -671,22 +729,60 @@ def play_game(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, ti
     while not game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
         if turn_budget >= 0 and played >= turn_budget:
             break
-        n_actions += prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+        n_actions += prepare_turn(
+            time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws
+        )
         rng_base = np.uint64(0)
         if script0 == RANDOM or script1 == RANDOM:
             rng_base = _rng_base(seed, game_id, turn[g])
         choose_actions(script0, 0, utype, x, y, hp, rng_base, ws)
         choose_actions(script1, 1, utype, x, y, hp, rng_base ^ np.uint64(0x5555555555555555), ws)
-        apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                   prev_hp_sum, overkill_pass, ws)
+        apply_turn(
+            g,
+            utype,
+            uid,
+            x,
+            y,
+            px,
+            py,
+            t_act,
+            last,
+            hp,
+            t_move,
+            t_attack,
+            time,
+            turn,
+            stale,
+            prev_hp_sum,
+            overkill_pass,
+            ws,
+        )
         played += 1
     return n_actions
 
 
 @njit(cache=True, parallel=True)
-def play_games(fields, time, turn, stale, prev_hp_sum, ltd2_total, walkable, script0, script1,
-               overkill_pass, stalemate_limit, max_turns, turn_budget, seed, game_ids, n_chunks,
-               winner_out, ltd2_out, actions_out):
+def play_games(
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    ltd2_total,
+    walkable,
+    script0,
+    script1,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    turn_budget,
+    seed,
+    game_ids,
+    n_chunks,
+    winner_out,
+    ltd2_out,
+    actions_out,
+):
     """Play every game of the batch until it is over or has played ``turn_budget`` more turns
     (-1: no budget), game ``g`` with script codes ``script0[g]`` and ``script1[g]``, in parallel
     over ``n_chunks`` strided chunks of games. Writes the winner and the final LTD2 evaluation
@@ -698,24 +794,75 @@ def play_games(fields, time, turn, stale, prev_hp_sum, ltd2_total, walkable, scr
         ws = make_workspace(n_slots)
         for g in range(c, n_games, n_chunks):
             actions_out[g] += play_game(
-                g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
-                t_attack[g], time, turn, stale, prev_hp_sum, walkable, script0[g], script1[g],
-                overkill_pass, stalemate_limit, max_turns, turn_budget, seed, game_ids[g], ws,
+                g,
+                utype[g],
+                uid[g],
+                x[g],
+                y[g],
+                px[g],
+                py[g],
+                t_act[g],
+                last[g],
+                hp[g],
+                t_move[g],
+                t_attack[g],
+                time,
+                turn,
+                stale,
+                prev_hp_sum,
+                walkable,
+                script0[g],
+                script1[g],
+                overkill_pass,
+                stalemate_limit,
+                max_turns,
+                turn_budget,
+                seed,
+                game_ids[g],
+                ws,
             )
             winner_out[g] = winner(utype[g], hp[g])
             ltd2_out[g] = evaluate(utype[g], hp[g], ltd2_total[g], False, 0)
 
 
 @njit(cache=True)
-def step_one(g, fields, time, turn, stale, prev_hp_sum, walkable, script0, script1, overkill_pass,
-             seed, game_id, actions, acting, movers):
+def step_one(
+    g,
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    walkable,
+    script0,
+    script1,
+    overkill_pass,
+    seed,
+    game_id,
+    actions,
+    acting,
+    movers,
+):
     """One turn of game ``g``; a side with script code EXTERNAL plays ``actions`` (int [2, U])
     instead. Writes the actions played, the acting mask and the movers; returns acting count."""
     n = fields[8].shape[2]
     ws = make_workspace(n)
     utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
-    n_acting = prepare_turn(time[g], utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g],
-                            t_move[g], t_attack[g], walkable, ws)
+    n_acting = prepare_turn(
+        time[g],
+        utype[g],
+        x[g],
+        y[g],
+        px[g],
+        py[g],
+        t_act[g],
+        last[g],
+        hp[g],
+        t_move[g],
+        t_attack[g],
+        walkable,
+        ws,
+    )
     rng_base = _rng_base(seed, game_id, turn[g])
     scripts = (script0, script1)
     for p in range(2):
@@ -730,6 +877,24 @@ def step_one(g, fields, time, turn, stale, prev_hp_sum, walkable, script0, scrip
         for s in range(n):
             actions[p, s] = ws[4][p, s]
             acting[p, s] = ws[6][p, s]
-    apply_turn(g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
-               t_attack[g], time, turn, stale, prev_hp_sum, overkill_pass, ws)
+    apply_turn(
+        g,
+        utype[g],
+        uid[g],
+        x[g],
+        y[g],
+        px[g],
+        py[g],
+        t_act[g],
+        last[g],
+        hp[g],
+        t_move[g],
+        t_attack[g],
+        time,
+        turn,
+        stale,
+        prev_hp_sum,
+        overkill_pass,
+        ws,
+    )
     return n_acting

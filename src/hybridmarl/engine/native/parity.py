@@ -49,7 +49,9 @@ def _jax_turn(rules_static: tuple):
     policy = _indexed_policy(0)
 
     def one(state, c0, c1, walkable):
-        rules = Rules(walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns)
+        rules = Rules(
+            walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns
+        )
         ctx = R.turn_context(state, rules)
         key = jax.random.PRNGKey(0)
         actions = jnp.stack([policy(key, state, ctx, 0, c0), policy(key, state, ctx, 1, c1)])
@@ -69,10 +71,15 @@ def _jax_game(rules_static: tuple):
     policy = _indexed_policy(0)
 
     def one(state, c0, c1, walkable):
-        rules = Rules(walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns)
+        rules = Rules(
+            walkable, stalemate_limit=stalemate_limit, overkill=overkill, max_turns=max_turns
+        )
         final, n = game.play_game(
-            jax.random.PRNGKey(0), state, rules,
-            lambda k, s, c, p: policy(k, s, c, p, c0), lambda k, s, c, p: policy(k, s, c, p, c1),
+            jax.random.PRNGKey(0),
+            state,
+            rules,
+            lambda k, s, c, p: policy(k, s, c, p, c0),
+            lambda k, s, c, p: policy(k, s, c, p, c1),
         )
         return final, game.result_of(final, n)
 
@@ -97,7 +104,11 @@ def first_difference(ours: NativeStates, ref: NativeStates) -> str | None:
 
 
 def lockstep(
-    states: NativeStates, rules: Rules, p0: Sequence[str], p1: Sequence[str], max_turns: int | None = None
+    states: NativeStates,
+    rules: Rules,
+    p0: Sequence[str],
+    p1: Sequence[str],
+    max_turns: int | None = None,
 ) -> tuple[NativeStates, int]:
     """Play both engines one turn at a time from the same states until every game is over (or
     ``max_turns`` turns), comparing the whole state after each turn. Raises ``AssertionError``
@@ -123,7 +134,11 @@ def games_over(states: NativeStates, rules: Rules) -> np.ndarray:
     """bool [B]: ``rules.game_over`` of every game, in NumPy."""
     can_hurt = (states.hp > 0) & (U.TABLES.script_damage[states.utype.clip(0, U.NUM_TYPES - 1)] > 0)
     dead: np.ndarray = ~np.any(can_hurt, axis=2)
-    return np.any(dead, axis=1) | (states.stale > rules.stalemate_limit) | (states.turn >= rules.max_turns)
+    return (
+        np.any(dead, axis=1)
+        | (states.stale > rules.stalemate_limit)
+        | (states.turn >= rules.max_turns)
+    )
 
 
 @dataclass
@@ -138,12 +153,17 @@ class GameComparison:
     ltd2_rounding: int = 0
 
 
-def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p1: Sequence[str]) -> GameComparison:
+def compare_whole_games(
+    states: NativeStates, rules: Rules, p0: Sequence[str], p1: Sequence[str]
+) -> GameComparison:
     """Play every game to its end on both engines; compare the final states and results
     (winner, final frame, turns, HP, unit actions exactly; LTD2 evaluation within 2, i.e.
     each side's LTD2 within 1)."""
     final_ref, res_ref = _jax_game(game.rules_static(rules))(
-        to_jax(states), jnp.asarray(script_choices(p0)), jnp.asarray(script_choices(p1)), rules.walkable
+        to_jax(states),
+        jnp.asarray(script_choices(p0)),
+        jnp.asarray(script_choices(p1)),
+        rules.walkable,
     )
     ref = from_jax(final_ref)
     final, res = play(states, rules, list(p0), list(p1))
@@ -165,10 +185,14 @@ def compare_whole_games(states: NativeStates, rules: Rules, p0: Sequence[str], p
             first += "final results differ, states equal turn by turn"
         except AssertionError as e:
             first += str(e)
-    return GameComparison(states.batch_size, int(bad.sum()), first, int(((ltd2_gap >= 1) & (ltd2_gap <= 2)).sum()))
+    return GameComparison(
+        states.batch_size, int(bad.sum()), first, int(((ltd2_gap >= 1) & (ltd2_gap <= 2)).sum())
+    )
 
 
-def random_walkable(rng: np.random.Generator, width: int = 64, height: int = 40, walls: int = 6) -> np.ndarray:
+def random_walkable(
+    rng: np.random.Generator, width: int = 64, height: int = 40, walls: int = 6
+) -> np.ndarray:
     """A walk-tile grid with a few random rectangular walls."""
     grid = np.ones((height, width), bool)
     for _ in range(walls):
@@ -179,7 +203,12 @@ def random_walkable(rng: np.random.Generator, width: int = 64, height: int = 40,
 
 
 def random_states(
-    rng: np.random.Generator, n: int, max_side: int, walkable: np.ndarray, *, types: Sequence[str] | None = None
+    rng: np.random.Generator,
+    n: int,
+    max_side: int,
+    walkable: np.ndarray,
+    *,
+    types: Sequence[str] | None = None,
 ) -> list[list[UnitSpec]]:
     """``n`` start states with 1..``max_side`` units of random types per side, P0 around a point
     left of the map's middle and P1 right of it (sometimes overlapping), on walkable pixels."""

@@ -65,17 +65,37 @@ def compile_kernels(quiet: bool = False) -> float:
         return 0.0
     note = not quiet and not _cached_on_disk()
     if note:
-        print("hybridmarl: compiling the native engine (first run only, about a minute; cached afterwards) ...",
-              end="", file=sys.stderr, flush=True)
+        print(
+            "hybridmarl: compiling the native engine (first run only, about a minute; cached afterwards) ...",
+            end="",
+            file=sys.stderr,
+            flush=True,
+        )
     start = _time.perf_counter()
-    tiny = build_native_states([[UnitSpec("Terran_Marine", 0, 100, 100), UnitSpec("Terran_Marine", 1, 140, 100)]])
+    tiny = build_native_states(
+        [[UnitSpec("Terran_Marine", 0, 100, 100), UnitSpec("Terran_Marine", 1, 140, 100)]]
+    )
     walkable = np.ones((4, 4), np.bool_)
     codes = np.zeros(1, np.int64)
-    _run_kernel(tiny, walkable, codes, codes, True, 50, 20000, -1, 0,
-                np.zeros(1, np.int64), 1)
+    _run_kernel(tiny, walkable, codes, codes, True, 50, 20000, -1, 0, np.zeros(1, np.int64), 1)
     acts = np.zeros((2, 1), np.int64)
-    K.step_one(0, tiny.unit_fields(), tiny.time, tiny.turn, tiny.stale, tiny.prev_hp_sum, walkable,
-               K.EXTERNAL, K.EXTERNAL, True, 0, 0, acts, np.zeros((2, 1), np.bool_), np.zeros(2, np.bool_))
+    K.step_one(
+        0,
+        tiny.unit_fields(),
+        tiny.time,
+        tiny.turn,
+        tiny.stale,
+        tiny.prev_hp_sum,
+        walkable,
+        K.EXTERNAL,
+        K.EXTERNAL,
+        True,
+        0,
+        0,
+        acts,
+        np.zeros((2, 1), np.bool_),
+        np.zeros(2, np.bool_),
+    )
     compile_seconds = _time.perf_counter() - start
     if note:
         print(f" done in {compile_seconds:.1f} s", file=sys.stderr, flush=True)
@@ -83,8 +103,19 @@ def compile_kernels(quiet: bool = False) -> float:
     return compile_seconds
 
 
-def _run_kernel(states: NativeStates, walkable, s0, s1, overkill_pass, stalemate_limit, max_turns,
-                turn_budget, seed, game_ids, threads) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _run_kernel(
+    states: NativeStates,
+    walkable,
+    s0,
+    s1,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    turn_budget,
+    seed,
+    game_ids,
+    threads,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     b = states.batch_size
     winner = np.zeros(b, np.int32)
     ltd2 = np.zeros(b, np.int32)
@@ -94,9 +125,27 @@ def _run_kernel(states: NativeStates, walkable, s0, s1, overkill_pass, stalemate
     chunks = max(1, min(b, numba.get_num_threads() * 16))
     s0 = np.array(np.broadcast_to(np.asarray(s0, np.int64), (b,)))
     s1 = np.array(np.broadcast_to(np.asarray(s1, np.int64), (b,)))
-    K.play_games(states.unit_fields(), states.time, states.turn, states.stale, states.prev_hp_sum,
-                 states.ltd2_total, walkable, s0, s1, overkill_pass, stalemate_limit, max_turns,
-                 turn_budget, seed, game_ids, chunks, winner, ltd2, n_actions)
+    K.play_games(
+        states.unit_fields(),
+        states.time,
+        states.turn,
+        states.stale,
+        states.prev_hp_sum,
+        states.ltd2_total,
+        walkable,
+        s0,
+        s1,
+        overkill_pass,
+        stalemate_limit,
+        max_turns,
+        turn_budget,
+        seed,
+        game_ids,
+        chunks,
+        winner,
+        ltd2,
+        n_actions,
+    )
     return winner, ltd2, n_actions
 
 
@@ -134,12 +183,27 @@ def play(
     states and the results. ``p0``/``p1``: a script name, or one per game. ``game_ids`` (default 0..B-1) and ``seed`` feed the random script."""
     compile_kernels()
     final = states if in_place else states.copy()
-    ids = np.arange(final.batch_size, dtype=np.int64) if game_ids is None else np.asarray(game_ids, np.int64)
-    winner, ltd2, n_actions = _run_kernel(
-        final, _walkable(rules), _script_codes(p0), _script_codes(p1), rules.overkill == "pass",
-        rules.stalemate_limit, rules.max_turns, -1, int(seed), ids, threads,
+    ids = (
+        np.arange(final.batch_size, dtype=np.int64)
+        if game_ids is None
+        else np.asarray(game_ids, np.int64)
     )
-    res = NativeResults(winner, final.time.copy(), final.turn.copy(), final.hp.copy(), ltd2, n_actions)
+    winner, ltd2, n_actions = _run_kernel(
+        final,
+        _walkable(rules),
+        _script_codes(p0),
+        _script_codes(p1),
+        rules.overkill == "pass",
+        rules.stalemate_limit,
+        rules.max_turns,
+        -1,
+        int(seed),
+        ids,
+        threads,
+    )
+    res = NativeResults(
+        winner, final.time.copy(), final.turn.copy(), final.hp.copy(), ltd2, n_actions
+    )
     return final, res
 
 
@@ -157,9 +221,19 @@ def advance(
     ``p0``/``p1``: a script name, or one per game."""
     compile_kernels()
     out = states.copy()
-    _run_kernel(out, _walkable(rules), _script_codes(p0), _script_codes(p1), rules.overkill == "pass",
-                rules.stalemate_limit, rules.max_turns, int(turns), int(seed),
-                np.arange(out.batch_size, dtype=np.int64), threads)
+    _run_kernel(
+        out,
+        _walkable(rules),
+        _script_codes(p0),
+        _script_codes(p1),
+        rules.overkill == "pass",
+        rules.stalemate_limit,
+        rules.max_turns,
+        int(turns),
+        int(seed),
+        np.arange(out.batch_size, dtype=np.int64),
+        threads,
+    )
     return out
 
 
@@ -178,24 +252,52 @@ def step(
     action codes of ``engine.rules``). Returns (actions played [2, U], acting [2, U], movers [2])."""
     compile_kernels()
     n = states.num_slots
-    acts = np.zeros((2, n), np.int64) if actions is None else np.array(actions, dtype=np.int64).reshape(2, n)
+    acts = (
+        np.zeros((2, n), np.int64)
+        if actions is None
+        else np.array(actions, dtype=np.int64).reshape(2, n)
+    )
     acting = np.zeros((2, n), np.bool_)
     movers = np.zeros(2, np.bool_)
-    K.step_one(int(index), states.unit_fields(), states.time, states.turn, states.stale, states.prev_hp_sum,
-               _walkable(rules), _script_code(p0), _script_code(p1), rules.overkill == "pass", int(seed),
-               int(index), acts, acting, movers)
+    K.step_one(
+        int(index),
+        states.unit_fields(),
+        states.time,
+        states.turn,
+        states.stale,
+        states.prev_hp_sum,
+        _walkable(rules),
+        _script_code(p0),
+        _script_code(p1),
+        rules.overkill == "pass",
+        int(seed),
+        int(index),
+        acts,
+        acting,
+        movers,
+    )
     return acts, acting, movers
 
 
-def apply_actions(states: NativeStates, index: int, actions: np.ndarray, rules: Rules) -> np.ndarray:
+def apply_actions(
+    states: NativeStates, index: int, actions: np.ndarray, rules: Rules
+) -> np.ndarray:
     """Play one turn of game ``index`` in place with the given actions for both sides (for search
     code: ``rules.apply_actions`` of the turn's context). Returns the acting mask [2, U]."""
     return step(states, index, rules, None, None, actions=actions)[1]
 
 
 def game_over(states: NativeStates, index: int, rules: Rules) -> bool:
-    return bool(K.game_over(states.utype[index], states.hp[index], int(states.stale[index]),
-                            int(states.turn[index]), rules.stalemate_limit, rules.max_turns))
+    return bool(
+        K.game_over(
+            states.utype[index],
+            states.hp[index],
+            int(states.stale[index]),
+            int(states.turn[index]),
+            rules.stalemate_limit,
+            rules.max_turns,
+        )
+    )
 
 
 def _describe(before: NativeStates, after: NativeStates, actions, p: int, s: int) -> str:
@@ -204,7 +306,10 @@ def _describe(before: NativeStates, after: NativeStates, actions, p: int, s: int
     if code >= K.ATTACK_BASE:
         text = f"ATTACK target={int(before.uid[0, 1 - p, code - K.ATTACK_BASE])}"
         t = int(before.time[0])
-        if int(after.t_move[0, p, s]) == t + K.PASS_DURATION and int(after.t_attack[0, p, s]) == t + K.PASS_DURATION:
+        if (
+            int(after.t_move[0, p, s]) == t + K.PASS_DURATION
+            and int(after.t_attack[0, p, s]) == t + K.PASS_DURATION
+        ):
             text += " [overkill->PASS]"
     elif K.MOVE_BASE <= code < K.ATTACK_BASE:
         text = f"MOVE dest=({int(after.x[0, p, s])},{int(after.y[0, p, s])})"
@@ -226,7 +331,10 @@ def record_trace(units: list[UnitSpec], rules: Rules, p0: str, p1: str, seed: in
         mover = "BOTH" if movers.all() else ("P0" if movers[0] else "P1")
         lines = []
         for p in (1, 0):
-            slots = sorted((s for s in range(state.num_slots) if acting[p, s]), key=lambda s, p=p: int(before.uid[0, p, s]))
+            slots = sorted(
+                (s for s in range(state.num_slots) if acting[p, s]),
+                key=lambda s, p=p: int(before.uid[0, p, s]),
+            )
             lines += [_describe(before, state, acts, p, s) for s in slots]
         hp: dict[int, int] = {}
         alive: dict[int, tuple[int, int, int, int]] = {}
@@ -237,10 +345,23 @@ def record_trace(units: list[UnitSpec], rules: Rules, p0: str, p1: str, seed: in
                     continue
                 hp[u] = max(int(state.hp[0, p, s]), 0)
                 if state.hp[0, p, s] > 0:
-                    alive[u] = (int(state.x[0, p, s]), int(state.y[0, p, s]), int(state.t_move[0, p, s]),
-                                int(state.t_attack[0, p, s]))
-        trace.turns.append(TurnRecord(int(before.turn[0]), int(before.time[0]), mover, lines, hp, alive,
-                                      int(state.time[0])))
+                    alive[u] = (
+                        int(state.x[0, p, s]),
+                        int(state.y[0, p, s]),
+                        int(state.t_move[0, p, s]),
+                        int(state.t_attack[0, p, s]),
+                    )
+        trace.turns.append(
+            TurnRecord(
+                int(before.turn[0]),
+                int(before.time[0]),
+                mover,
+                lines,
+                hp,
+                alive,
+                int(state.time[0]),
+            )
+        )
     return trace
 
 
@@ -296,8 +417,16 @@ def run_battles(
     for start in range(0, n, batch_size):
         stop = min(start + batch_size, n)
         chunk = native.take(slice(start, stop))
-        _, res = play(chunk, rules, p0c, p1c, seed=seed, threads=threads,
-                      game_ids=np.arange(start, stop, dtype=np.int64), in_place=True)
+        _, res = play(
+            chunk,
+            rules,
+            p0c,
+            p1c,
+            seed=seed,
+            threads=threads,
+            game_ids=np.arange(start, stop, dtype=np.int64),
+            in_place=True,
+        )
         parts.append(res)
         if bar is not None:
             bar[0].update(bar[1], advance=stop - start)

@@ -115,18 +115,98 @@ def _choose(script, p, utype, x, y, hp, rng_base, ws):
 
 
 @njit_without_refcount
-def _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws):
-    apply_turn(0, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
+def _apply(
+    utype,
+    uid,
+    x,
+    y,
+    px,
+    py,
+    t_act,
+    last,
+    hp,
+    t_move,
+    t_attack,
+    time,
+    turn,
+    stale,
+    prev,
+    overkill_pass,
+    ws,
+):
+    apply_turn(
+        0,
+        utype,
+        uid,
+        x,
+        y,
+        px,
+        py,
+        t_act,
+        last,
+        hp,
+        t_move,
+        t_attack,
+        time,
+        turn,
+        stale,
+        prev,
+        overkill_pass,
+        ws,
+    )
 
 
 @njit_without_refcount
-def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd_total,
-                ltd2_total, walkable, info_scripts, playout0, playout1, overkill_pass,
-                stalemate_limit, seed, ws, st, sc, prev,
-                child_out, step_moves, movers_out, acting_out, legal_out, order_out, scripts_out,
-                terminal_out, ev_out, hash_out, value_out, pmoves_out, both_dead_out):
+def _search_one(
+    k,
+    vecs,
+    actions,
+    mask,
+    do_step,
+    player,
+    cap,
+    use_ltd,
+    utype,
+    uid,
+    ltd_total,
+    ltd2_total,
+    walkable,
+    info_scripts,
+    playout0,
+    playout1,
+    overkill_pass,
+    stalemate_limit,
+    seed,
+    ws,
+    st,
+    sc,
+    prev,
+    child_out,
+    step_moves,
+    movers_out,
+    acting_out,
+    legal_out,
+    order_out,
+    scripts_out,
+    terminal_out,
+    ev_out,
+    hash_out,
+    value_out,
+    pmoves_out,
+    both_dead_out,
+):
     n = st.shape[2]
-    x, y, px, py, t_act, last, hp, t_move, t_attack = st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8]
+    x, y, px, py, t_act, last, hp, t_move, t_attack = (
+        st[0],
+        st[1],
+        st[2],
+        st[3],
+        st[4],
+        st[5],
+        st[6],
+        st[7],
+        st[8],
+    )
     time, turn, stale = sc[0], sc[1], sc[2]
     _unpack(vecs[k], st, sc, prev)
     # 1. The child: the joint action for the masked sides, then finishedMoving.
@@ -142,7 +222,25 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
                 acts[p, s] = actions[k, p, s]
                 if a and _is_move(actions[k, p, s]):
                     step_moves[k, p] += 1
-        _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
+        _apply(
+            utype,
+            uid,
+            x,
+            y,
+            px,
+            py,
+            t_act,
+            last,
+            hp,
+            t_move,
+            t_attack,
+            time,
+            turn,
+            stale,
+            prev,
+            overkill_pass,
+            ws,
+        )
     _pack(st, sc, prev, child_out[k])
     # 2. The child's node info.
     _prepare(time[0], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
@@ -180,7 +278,9 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
     rng = _rng_base(seed, k, turn[0])
     for i in range(info_scripts.shape[0]):
         for p in range(2):
-            _choose(info_scripts[i], p, utype, x, y, hp, rng ^ (salt1 if p == 1 else np.uint64(0)), ws)
+            _choose(
+                info_scripts[i], p, utype, x, y, hp, rng ^ (salt1 if p == 1 else np.uint64(0)), ws
+            )
             for s in range(n):
                 scripts_out[k, i, p, s] = ws[4][p, s]
     terminal_out[k] = _terminal(utype, hp, stale[0], stalemate_limit)
@@ -232,7 +332,25 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
         for s in range(n):
             if ws[6][pl, s] and _is_move(ws[4][pl, s]):
                 moves += 1
-        _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
+        _apply(
+            utype,
+            uid,
+            x,
+            y,
+            px,
+            py,
+            t_act,
+            last,
+            hp,
+            t_move,
+            t_attack,
+            time,
+            turn,
+            stale,
+            prev,
+            overkill_pass,
+            ws,
+        )
         played += 1
     totals = ltd_total if use_ltd else ltd2_total
     s0, s1 = side_scores(utype, hp, totals, use_ltd)
@@ -248,10 +366,40 @@ def _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, ui
 
 
 @njit(cache=True, parallel=True)
-def search_batch(vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd_total, ltd2_total,
-                 walkable, info_scripts, playout0, playout1, overkill_pass, stalemate_limit, seed, n_chunks,
-                 child_out, step_moves, movers_out, acting_out, legal_out, order_out, scripts_out,
-                 terminal_out, ev_out, hash_out, value_out, pmoves_out, both_dead_out):
+def search_batch(
+    vecs,
+    actions,
+    mask,
+    do_step,
+    player,
+    cap,
+    use_ltd,
+    utype,
+    uid,
+    ltd_total,
+    ltd2_total,
+    walkable,
+    info_scripts,
+    playout0,
+    playout1,
+    overkill_pass,
+    stalemate_limit,
+    seed,
+    n_chunks,
+    child_out,
+    step_moves,
+    movers_out,
+    acting_out,
+    legal_out,
+    order_out,
+    scripts_out,
+    terminal_out,
+    ev_out,
+    hash_out,
+    value_out,
+    pmoves_out,
+    both_dead_out,
+):
     """Every entry ``k`` of the batch (see the module docstring), in parallel over ``n_chunks``
     strided chunks. Outputs are written in place."""
     n = utype.shape[1]
@@ -262,18 +410,80 @@ def search_batch(vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid,
         sc = np.zeros((3, 1), np.int32)
         prev = np.zeros((1, 2), np.int32)
         for k in range(c, m, n_chunks):
-            _search_one(k, vecs, actions, mask, do_step, player, cap, use_ltd, utype, uid, ltd_total,
-                        ltd2_total, walkable, info_scripts, playout0, playout1, overkill_pass,
-                        stalemate_limit, seed, ws, st, sc, prev,
-                        child_out, step_moves, movers_out, acting_out, legal_out, order_out, scripts_out,
-                        terminal_out, ev_out, hash_out, value_out, pmoves_out, both_dead_out)
+            _search_one(
+                k,
+                vecs,
+                actions,
+                mask,
+                do_step,
+                player,
+                cap,
+                use_ltd,
+                utype,
+                uid,
+                ltd_total,
+                ltd2_total,
+                walkable,
+                info_scripts,
+                playout0,
+                playout1,
+                overkill_pass,
+                stalemate_limit,
+                seed,
+                ws,
+                st,
+                sc,
+                prev,
+                child_out,
+                step_moves,
+                movers_out,
+                acting_out,
+                legal_out,
+                order_out,
+                scripts_out,
+                terminal_out,
+                ev_out,
+                hash_out,
+                value_out,
+                pmoves_out,
+                both_dead_out,
+            )
 
 
 @njit_without_refcount
-def _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, scripts, overkill_pass,
-             stalemate_limit, seed, ws, st, sc, prev, used, per_script):
+def _pgs_one(
+    k,
+    vec,
+    assign,
+    player,
+    turns,
+    utype,
+    uid,
+    ltd2_total,
+    walkable,
+    scripts,
+    overkill_pass,
+    stalemate_limit,
+    seed,
+    ws,
+    st,
+    sc,
+    prev,
+    used,
+    per_script,
+):
     n = st.shape[2]
-    x, y, px, py, t_act, last, hp, t_move, t_attack = st[0], st[1], st[2], st[3], st[4], st[5], st[6], st[7], st[8]
+    x, y, px, py, t_act, last, hp, t_move, t_attack = (
+        st[0],
+        st[1],
+        st[2],
+        st[3],
+        st[4],
+        st[5],
+        st[6],
+        st[7],
+        st[8],
+    )
     time, turn, stale = sc[0], sc[1], sc[2]
     _unpack(vec, st, sc, prev)
     ns = scripts.shape[0]
@@ -293,19 +503,60 @@ def _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, sc
             # sees every acting unit); each unit then takes its own script's action.
             for i in range(ns):
                 if used[i]:
-                    _choose(scripts[i], p, utype, x, y, hp, rng ^ (salt1 if p == 1 else np.uint64(0)), ws)
+                    _choose(
+                        scripts[i],
+                        p,
+                        utype,
+                        x,
+                        y,
+                        hp,
+                        rng ^ (salt1 if p == 1 else np.uint64(0)),
+                        ws,
+                    )
                     for s in range(n):
                         per_script[i, s] = ws[4][p, s]
             for s in range(n):
                 ws[4][p, s] = per_script[assign[k, p, s], s] if acting[p, s] else PASS_ACTION
-        _apply(utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale, prev, overkill_pass, ws)
+        _apply(
+            utype,
+            uid,
+            x,
+            y,
+            px,
+            py,
+            t_act,
+            last,
+            hp,
+            t_move,
+            t_attack,
+            time,
+            turn,
+            stale,
+            prev,
+            overkill_pass,
+            ws,
+        )
         played += 1
     return evaluate(utype, hp, ltd2_total, False, player[k])
 
 
 @njit(cache=True, parallel=True)
-def pgs_batch(vec, assign, player, turns, utype, uid, ltd2_total, walkable, scripts, overkill_pass,
-              stalemate_limit, seed, n_chunks, value_out):
+def pgs_batch(
+    vec,
+    assign,
+    player,
+    turns,
+    utype,
+    uid,
+    ltd2_total,
+    walkable,
+    scripts,
+    overkill_pass,
+    stalemate_limit,
+    seed,
+    n_chunks,
+    value_out,
+):
     """Per-unit script playouts from one packed state ``vec``: entry ``k`` plays unit (p, s) with
     script ``scripts[assign[k, p, s]]`` while the state is not terminal and rounds <= ``turns``,
     and scores ``eval(player[k], LTD2)`` of the final state."""
@@ -319,5 +570,24 @@ def pgs_batch(vec, assign, player, turns, utype, uid, ltd2_total, walkable, scri
         used = np.zeros(scripts.shape[0], np.bool_)
         per_script = np.zeros((scripts.shape[0], n), np.int64)
         for k in range(c, m, n_chunks):
-            value_out[k] = _pgs_one(k, vec, assign, player, turns, utype, uid, ltd2_total, walkable, scripts,
-                                    overkill_pass, stalemate_limit, seed, ws, st, sc, prev, used, per_script)
+            value_out[k] = _pgs_one(
+                k,
+                vec,
+                assign,
+                player,
+                turns,
+                utype,
+                uid,
+                ltd2_total,
+                walkable,
+                scripts,
+                overkill_pass,
+                stalemate_limit,
+                seed,
+                ws,
+                st,
+                sc,
+                prev,
+                used,
+                per_script,
+            )

@@ -61,7 +61,9 @@ class NativeStates(NamedTuple):
         return NativeStates(*(np.ascontiguousarray(a[index]) for a in self))
 
 
-_DTYPES = {f: np.float32 if f in ("ltd_total", "ltd2_total") else np.int32 for f in NativeStates._fields}
+_DTYPES = {
+    f: np.float32 if f in ("ltd_total", "ltd2_total") else np.int32 for f in NativeStates._fields
+}
 
 
 def check_representable(states: NativeStates) -> None:
@@ -88,7 +90,10 @@ def _native(arrays: dict[str, np.ndarray]) -> NativeStates:
     # Always a writable copy: kernels update states in place, and NumPy views of JAX arrays are
     # read-only (a distinct Numba type, too).
     return NativeStates(
-        **{f: np.array(arrays[f], dtype=_DTYPES[f], order="C", copy=True) for f in NativeStates._fields}
+        **{
+            f: np.array(arrays[f], dtype=_DTYPES[f], order="C", copy=True)
+            for f in NativeStates._fields
+        }
     )
 
 
@@ -131,10 +136,14 @@ def _check_unit_lists(states: Sequence[Sequence[UnitSpec]]) -> None:
         for p in (0, 1):
             n = sum(1 for u in units if u.player == p)
             if n > MAX_UNITS_PER_SIDE:
-                raise InputError(f"state {i}: player {p} has {n} units (at most {MAX_UNITS_PER_SIDE})")
+                raise InputError(
+                    f"state {i}: player {p} has {n} units (at most {MAX_UNITS_PER_SIDE})"
+                )
 
 
-def build_native_states(states: Sequence[Sequence[UnitSpec]], num_slots: int | None = None) -> NativeStates:
+def build_native_states(
+    states: Sequence[Sequence[UnitSpec]], num_slots: int | None = None
+) -> NativeStates:
     """Start states from unit lists (ids = list positions), padded to ``num_slots`` (default: the
     largest side of any state); equal to ``from_jax(build_batch(states, num_slots))``."""
     _check_unit_lists(states)

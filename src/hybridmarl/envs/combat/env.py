@@ -536,7 +536,6 @@ class Combat(LearningEnv[CombatState, CombatParams]):
 
         return policy
 
-
     # -- observations -----------------------------------------------------------------------------
 
     def observe(self, state: CombatState) -> jax.Array:
@@ -597,7 +596,9 @@ class Combat(LearningEnv[CombatState, CombatParams]):
         ``spec.max_turns`` under ``spec.setting``, and its default parameters."""
         enemy = enemy_script if enemy_script is not None else canonical_policy_name(cls, spec.enemy)
         env = cls(
-            scenario=spec.scenario, enemy=enemy, max_turns=spec.max_turns,
+            scenario=spec.scenario,
+            enemy=enemy,
+            max_turns=spec.max_turns,
             setting=getattr(spec, "setting", None),
         )
         return env, env.default_params
@@ -605,7 +606,9 @@ class Combat(LearningEnv[CombatState, CombatParams]):
     @classmethod
     def spec_label(cls, spec: Any) -> str:
         setting = getattr(spec, "setting", "sparcraft")
-        return f"{spec.scenario} vs {spec.enemy}" + ("" if setting == "sparcraft" else f" ({setting} setting)")
+        return f"{spec.scenario} vs {spec.enemy}" + (
+            "" if setting == "sparcraft" else f" ({setting} setting)"
+        )
 
     @classmethod
     def canonical_demonstrator(cls, name: str) -> str:
@@ -618,7 +621,9 @@ class Combat(LearningEnv[CombatState, CombatParams]):
         """Our side played by the engine script ``name`` (:meth:`script_policy`)."""
         return self.script_policy(name)
 
-    def episode_metrics(self, state: CombatState, info: dict[str, jax.Array]) -> dict[str, jax.Array]:
+    def episode_metrics(
+        self, state: CombatState, info: dict[str, jax.Array]
+    ) -> dict[str, jax.Array]:
         del state
         return {k: info[k].astype(jnp.float32) for k in self.metric_names}
 
@@ -644,8 +649,12 @@ class Combat(LearningEnv[CombatState, CombatParams]):
         lo, hi = wilson_interval(wins, n)
         r, rlo, rhi = t_interval(ep["terminal_hp_reward"])
         return dict(
-            W=wins / n, W_ci95=[lo, hi], R=r, R_ci95=[rlo, rhi],
-            losses=float(np.mean(ep["lost"])), draws=float(np.mean(ep["draw"])),
+            W=wins / n,
+            W_ci95=[lo, hi],
+            R=r,
+            R_ci95=[rlo, rhi],
+            losses=float(np.mean(ep["lost"])),
+            draws=float(np.mean(ep["draw"])),
         )
 
     @classmethod

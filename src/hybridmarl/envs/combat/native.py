@@ -70,7 +70,10 @@ def state_arrays(states: Any) -> dict[str, np.ndarray]:
 
     return {
         "fields": tuple(arr(getattr(g, f)) for f in FIELDS),  # type: ignore[dict-item]
-        "time": arr(g.time), "turn": arr(g.turn), "stale": arr(g.stale), "prev_hp_sum": arr(g.prev_hp_sum),
+        "time": arr(g.time),
+        "turn": arr(g.turn),
+        "stale": arr(g.stale),
+        "prev_hp_sum": arr(g.prev_hp_sum),
         "init_hp0": arr(np.asarray(states.init_hp)[:, 0]),
     }  # the four engine moves, env actions MOVE_OFFSET .. MOVE_OFFSET + 3
 
@@ -143,9 +146,39 @@ def _hp_diff(hp):
 
 
 @njit_without_refcount
-def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-             prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
-             stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared):
+def env_step(
+    g,
+    utype,
+    uid,
+    x,
+    y,
+    px,
+    py,
+    t_act,
+    last,
+    hp,
+    t_move,
+    t_attack,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    walkable,
+    actions,
+    num_agents,
+    num_actions,
+    enemy,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    init_hp0,
+    seed,
+    game_id,
+    ws,
+    rank_slot,
+    rank_of_slot,
+    prepared,
+):
     """``Combat.step`` of game ``g`` (unit-field views ``[2, U]``) with env ``actions``
     ``[num_agents]``, in place. Returns ``(reward, done)``; a finished game is left as it is.
 
@@ -163,31 +196,154 @@ def env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, tim
     Compiled callers pass ``g`` and the flags as runtime values (``np.int64(0)``,
     ``np.bool_(True)``), never as literals: Numba compiles the whole turn loop again for every
     literal argument value it sees (about 25 s of compilation each)."""
-    return _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                     prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
-                     stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot,
-                     prepared, last, np.bool_(False))
+    return _env_step(
+        g,
+        utype,
+        uid,
+        x,
+        y,
+        px,
+        py,
+        t_act,
+        last,
+        hp,
+        t_move,
+        t_attack,
+        time,
+        turn,
+        stale,
+        prev_hp_sum,
+        walkable,
+        actions,
+        num_agents,
+        num_actions,
+        enemy,
+        overkill_pass,
+        stalemate_limit,
+        max_turns,
+        init_hp0,
+        seed,
+        game_id,
+        ws,
+        rank_slot,
+        rank_of_slot,
+        prepared,
+        last,
+        np.bool_(False),
+    )
 
 
 @njit_without_refcount
-def env_step_keeping_last_actions(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn,
-                                  stale, prev_hp_sum, walkable, actions, num_agents, num_actions, enemy,
-                                  overkill_pass, stalemate_limit, max_turns, init_hp0, seed, game_id, ws,
-                                  rank_slot, rank_of_slot, prepared, last_actions):
+def env_step_keeping_last_actions(
+    g,
+    utype,
+    uid,
+    x,
+    y,
+    px,
+    py,
+    t_act,
+    last,
+    hp,
+    t_move,
+    t_attack,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    walkable,
+    actions,
+    num_agents,
+    num_actions,
+    enemy,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    init_hp0,
+    seed,
+    game_id,
+    ws,
+    rank_slot,
+    rank_of_slot,
+    prepared,
+    last_actions,
+):
     """:func:`env_step` that also keeps ``CombatState.last_actions`` (int32 ``[2, U]``, in
     place): the engine action each unit issued during the step (the latest one if it acted more
     than once), -1 if none; left as it is when the game was already over."""
-    return _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                     prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
-                     stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot,
-                     prepared, last_actions, np.bool_(True))
+    return _env_step(
+        g,
+        utype,
+        uid,
+        x,
+        y,
+        px,
+        py,
+        t_act,
+        last,
+        hp,
+        t_move,
+        t_attack,
+        time,
+        turn,
+        stale,
+        prev_hp_sum,
+        walkable,
+        actions,
+        num_agents,
+        num_actions,
+        enemy,
+        overkill_pass,
+        stalemate_limit,
+        max_turns,
+        init_hp0,
+        seed,
+        game_id,
+        ws,
+        rank_slot,
+        rank_of_slot,
+        prepared,
+        last_actions,
+        np.bool_(True),
+    )
 
 
 @njit_without_refcount
-def _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-              prev_hp_sum, walkable, actions, num_agents, num_actions, enemy, overkill_pass,
-              stalemate_limit, max_turns, init_hp0, seed, game_id, ws, rank_slot, rank_of_slot, prepared,
-              last_actions, keep_last_actions):
+def _env_step(
+    g,
+    utype,
+    uid,
+    x,
+    y,
+    px,
+    py,
+    t_act,
+    last,
+    hp,
+    t_move,
+    t_attack,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    walkable,
+    actions,
+    num_agents,
+    num_actions,
+    enemy,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    init_hp0,
+    seed,
+    game_id,
+    ws,
+    rank_slot,
+    rank_of_slot,
+    prepared,
+    last_actions,
+    keep_last_actions,
+):
     """The body of :func:`env_step`; with ``keep_last_actions`` it also records every turn's
     actions of the acting units in ``last_actions`` (as ``Combat._turn`` does)."""
     if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
@@ -218,7 +374,9 @@ def _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, ti
     first = True
     while True:
         if not first:
-            prepare_turn(time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws)
+            prepare_turn(
+                time[g], utype, x, y, px, py, t_act, last, hp, t_move, t_attack, walkable, ws
+            )
             for u in range(n):
                 chosen[0, u] = PASS_ACTION
         if enemy == RANDOM:  # the native generator, keyed by (seed, game, turn)
@@ -229,8 +387,26 @@ def _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, ti
                 for u in range(n):
                     if ws[6][p, u]:
                         last_actions[p, u] = ws[4][p, u]
-        apply_turn(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                   prev_hp_sum, overkill_pass, ws)
+        apply_turn(
+            g,
+            utype,
+            uid,
+            x,
+            y,
+            px,
+            py,
+            t_act,
+            last,
+            hp,
+            t_move,
+            t_attack,
+            time,
+            turn,
+            stale,
+            prev_hp_sum,
+            overkill_pass,
+            ws,
+        )
         first = False
         if game_over(utype, hp, stale[g], turn[g], stalemate_limit, max_turns):
             break
@@ -241,9 +417,33 @@ def _env_step(g, utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack, ti
 
 
 @njit_without_refcount
-def script_env_actions(g, utype, x, y, px, py, t_act, last, hp, t_move, t_attack, time, turn, stale,
-                       walkable, script, num_agents, stalemate_limit, max_turns, seed, game_id, ws,
-                       rank_slot, rank_of_slot, out):
+def script_env_actions(
+    g,
+    utype,
+    x,
+    y,
+    px,
+    py,
+    t_act,
+    last,
+    hp,
+    t_move,
+    t_attack,
+    time,
+    turn,
+    stale,
+    walkable,
+    script,
+    num_agents,
+    stalemate_limit,
+    max_turns,
+    seed,
+    game_id,
+    ws,
+    rank_slot,
+    rank_of_slot,
+    out,
+):
     """``Combat.script_policy(script)`` at game ``g``: the script's engine actions for our side
     as env actions (noop for units that do not act, and everywhere once the game is over)."""
     for u in range(num_agents):
@@ -299,7 +499,9 @@ def _side_stats(values, hp, p, out, at):
 
 
 @njit_without_refcount
-def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agents, num_enemies, values, out):
+def critic_features(
+    t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agents, num_enemies, values, out
+):
     """``observe.critic_features`` of one game (``values``: float32 ``[2, U]`` scratch). Allocates
     nothing, so it is compiled without reference counting (see ``env_step``)."""
     n = hp.shape[1]
@@ -353,15 +555,42 @@ def critic_features(t, x, y, px, py, t_act, last, hp, t_move, t_attack, num_agen
 
 
 __all__ = [
-    "CRITIC_FEATURES", "critic_features", "enemy_ranks", "env_step", "env_step_keeping_last_actions",
-    "play_scripted_episodes", "script_env_actions", "state_arrays", "step_scripted_games",
+    "CRITIC_FEATURES",
+    "critic_features",
+    "enemy_ranks",
+    "env_step",
+    "env_step_keeping_last_actions",
+    "play_scripted_episodes",
+    "script_env_actions",
+    "state_arrays",
+    "step_scripted_games",
 ]
 
 
 @njit(cache=True, parallel=True)
-def play_scripted_episodes(fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script, enemy,
-                           num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
-                           n_chunks, won, lost, steps, returns, terminal):
+def play_scripted_episodes(
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    init_hp0,
+    walkable,
+    script,
+    enemy,
+    num_agents,
+    num_actions,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    seed,
+    n_chunks,
+    won,
+    lost,
+    steps,
+    returns,
+    terminal,
+):
     """Whole episodes of the combat env, our side played by ``script``, every game of the batch
     in place (in parallel over ``n_chunks`` strided chunks): the env's episode metrics, with the
     return summed step by step as the env's evaluation loop sums it."""
@@ -370,15 +599,63 @@ def play_scripted_episodes(fields, time, turn, stale, prev_hp_sum, init_hp0, wal
         ws = make_workspace(n)
         ranks = np.empty((2, n), np.int64)
         acts = np.empty(num_agents, np.int64)
-        _play_scripted_chunk(np.int64(c), n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script,
-                             enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
-                             won, lost, steps, returns, terminal, ws, ranks, acts)
+        _play_scripted_chunk(
+            np.int64(c),
+            n_chunks,
+            fields,
+            time,
+            turn,
+            stale,
+            prev_hp_sum,
+            init_hp0,
+            walkable,
+            script,
+            enemy,
+            num_agents,
+            num_actions,
+            overkill_pass,
+            stalemate_limit,
+            max_turns,
+            seed,
+            won,
+            lost,
+            steps,
+            returns,
+            terminal,
+            ws,
+            ranks,
+            acts,
+        )
 
 
 @njit_without_refcount
-def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, init_hp0, walkable, script,
-                         enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed,
-                         won, lost, steps, returns, terminal, ws, ranks, acts):
+def _play_scripted_chunk(
+    c,
+    n_chunks,
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    init_hp0,
+    walkable,
+    script,
+    enemy,
+    num_agents,
+    num_actions,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    seed,
+    won,
+    lost,
+    steps,
+    returns,
+    terminal,
+    ws,
+    ranks,
+    acts,
+):
     """Chunk ``c`` of :func:`play_scripted_episodes`, in the given scratch; allocates nothing,
     so it is compiled without reference counting (see ``env_step``)."""
     utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
@@ -389,13 +666,66 @@ def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, in
         count = 0
         done = game_over(utype[g], hp[g], stale[g], turn[g], stalemate_limit, max_turns)
         while not done:
-            script_env_actions(g, utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
-                               t_attack[g], time, turn, stale, walkable, script, num_agents, stalemate_limit,
-                               max_turns, seed, g, ws, rank_slot, rank_of, acts)
-            r, done = env_step(g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g],
-                               t_move[g], t_attack[g], time, turn, stale, prev_hp_sum, walkable, acts,
-                               num_agents, num_actions, enemy, overkill_pass, stalemate_limit, max_turns,
-                               init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(True))
+            script_env_actions(
+                g,
+                utype[g],
+                x[g],
+                y[g],
+                px[g],
+                py[g],
+                t_act[g],
+                last[g],
+                hp[g],
+                t_move[g],
+                t_attack[g],
+                time,
+                turn,
+                stale,
+                walkable,
+                script,
+                num_agents,
+                stalemate_limit,
+                max_turns,
+                seed,
+                g,
+                ws,
+                rank_slot,
+                rank_of,
+                acts,
+            )
+            r, done = env_step(
+                g,
+                utype[g],
+                uid[g],
+                x[g],
+                y[g],
+                px[g],
+                py[g],
+                t_act[g],
+                last[g],
+                hp[g],
+                t_move[g],
+                t_attack[g],
+                time,
+                turn,
+                stale,
+                prev_hp_sum,
+                walkable,
+                acts,
+                num_agents,
+                num_actions,
+                enemy,
+                overkill_pass,
+                stalemate_limit,
+                max_turns,
+                init_hp0[g],
+                seed,
+                g,
+                ws,
+                rank_slot,
+                rank_of,
+                np.bool_(True),
+            )
             ret = ret + r
             count += 1
         w = winner(utype[g], hp[g])
@@ -407,9 +737,32 @@ def _play_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, in
 
 
 @njit(cache=True, parallel=True)
-def step_scripted_games(fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0, walkable, script,
-                        enemy, num_agents, num_actions, overkill_pass, stalemate_limit, max_turns, seed, n_chunks,
-                        actions, reward, done, won, lost, terminal):
+def step_scripted_games(
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    last_actions,
+    steps,
+    init_hp0,
+    walkable,
+    script,
+    enemy,
+    num_agents,
+    num_actions,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    seed,
+    n_chunks,
+    actions,
+    reward,
+    done,
+    won,
+    lost,
+    terminal,
+):
     """One env step of every game of the batch, our side played by ``script``, in place (in
     parallel over ``n_chunks`` strided chunks): the whole ``CombatState`` moves on, including
     ``last_actions`` ``[B, 2, U]`` and ``steps`` ``[B]``, as ``Combat.step`` moves it. Writes the
@@ -422,16 +775,69 @@ def step_scripted_games(fields, time, turn, stale, prev_hp_sum, last_actions, st
     ranks = np.empty((n_chunks, 2, n), np.int64)
     acts = np.empty((n_chunks, num_agents), np.int64)
     for c in prange(n_chunks):
-        _step_scripted_chunk(np.int64(c), n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
-                             walkable, script, enemy, num_agents, num_actions, overkill_pass, stalemate_limit,
-                             max_turns, seed, actions, reward, done, won, lost, terminal, make_workspace(n), ranks[c],
-                             acts[c])
+        _step_scripted_chunk(
+            np.int64(c),
+            n_chunks,
+            fields,
+            time,
+            turn,
+            stale,
+            prev_hp_sum,
+            last_actions,
+            steps,
+            init_hp0,
+            walkable,
+            script,
+            enemy,
+            num_agents,
+            num_actions,
+            overkill_pass,
+            stalemate_limit,
+            max_turns,
+            seed,
+            actions,
+            reward,
+            done,
+            won,
+            lost,
+            terminal,
+            make_workspace(n),
+            ranks[c],
+            acts[c],
+        )
 
 
 @njit_without_refcount
-def _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, last_actions, steps, init_hp0,
-                         walkable, script, enemy, num_agents, num_actions, overkill_pass, stalemate_limit,
-                         max_turns, seed, actions, reward, done, won, lost, terminal, ws, ranks, acts):
+def _step_scripted_chunk(
+    c,
+    n_chunks,
+    fields,
+    time,
+    turn,
+    stale,
+    prev_hp_sum,
+    last_actions,
+    steps,
+    init_hp0,
+    walkable,
+    script,
+    enemy,
+    num_agents,
+    num_actions,
+    overkill_pass,
+    stalemate_limit,
+    max_turns,
+    seed,
+    actions,
+    reward,
+    done,
+    won,
+    lost,
+    terminal,
+    ws,
+    ranks,
+    acts,
+):
     """Chunk ``c`` of :func:`step_scripted_games`, in the given scratch; allocates nothing, so it
     is compiled without reference counting (see ``env_step``)."""
     utype, uid, x, y, px, py, t_act, last, hp, t_move, t_attack = fields
@@ -443,13 +849,66 @@ def _step_scripted_chunk(c, n_chunks, fields, time, turn, stale, prev_hp_sum, la
             for u in range(num_agents):
                 actions[g, u] = NOOP
         else:
-            script_env_actions(g, utype[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g],
-                               t_attack[g], time, turn, stale, walkable, script, num_agents, stalemate_limit,
-                               max_turns, seed, g, ws, rank_slot, rank_of, acts)
+            script_env_actions(
+                g,
+                utype[g],
+                x[g],
+                y[g],
+                px[g],
+                py[g],
+                t_act[g],
+                last[g],
+                hp[g],
+                t_move[g],
+                t_attack[g],
+                time,
+                turn,
+                stale,
+                walkable,
+                script,
+                num_agents,
+                stalemate_limit,
+                max_turns,
+                seed,
+                g,
+                ws,
+                rank_slot,
+                rank_of,
+                acts,
+            )
             r, d = env_step_keeping_last_actions(
-                g, utype[g], uid[g], x[g], y[g], px[g], py[g], t_act[g], last[g], hp[g], t_move[g], t_attack[g],
-                time, turn, stale, prev_hp_sum, walkable, acts, num_agents, num_actions, enemy, overkill_pass,
-                stalemate_limit, max_turns, init_hp0[g], seed, g, ws, rank_slot, rank_of, np.bool_(True), last_actions[g],
+                g,
+                utype[g],
+                uid[g],
+                x[g],
+                y[g],
+                px[g],
+                py[g],
+                t_act[g],
+                last[g],
+                hp[g],
+                t_move[g],
+                t_attack[g],
+                time,
+                turn,
+                stale,
+                prev_hp_sum,
+                walkable,
+                acts,
+                num_agents,
+                num_actions,
+                enemy,
+                overkill_pass,
+                stalemate_limit,
+                max_turns,
+                init_hp0[g],
+                seed,
+                g,
+                ws,
+                rank_slot,
+                rank_of,
+                np.bool_(True),
+                last_actions[g],
             )
             steps[g] += 1
             for u in range(num_agents):

@@ -115,7 +115,6 @@ def _materialise(tree: Any, guard: jax.Array) -> Any:
     return lax.while_loop(lambda c: jnp.any(c[0] < 0), body, (guard, tree))[1]
 
 
-
 def _unit_table(game: GameState, ctx: R.TurnContext, view: View, num_enemies: int) -> jax.Array:
     """float32 [2, U, 8]: the per-unit fields ``UNIT_FIELDS[:8]`` of every slot."""
     t = game.time
@@ -140,7 +139,6 @@ def _unit_table(game: GameState, ctx: R.TurnContext, view: View, num_enemies: in
         rank,
     ]
     return jnp.stack(cols, axis=-1)
-
 
 
 def observe(
@@ -282,7 +280,6 @@ def observe(
     return jnp.concatenate([own_arr, *outs], axis=-1)
 
 
-
 def obs_slice(
     part: str,
     index: int = 0,
@@ -308,7 +305,6 @@ def obs_slice(
     if field is None:
         return slice(start, start + len(names))
     return start + names.index(field)
-
 
 
 def critic_features(g: GameState, num_agents: int, num_enemies: int) -> jax.Array:

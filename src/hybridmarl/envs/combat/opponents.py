@@ -42,7 +42,9 @@ def resolve_enemy(enemy: str | Script) -> tuple[str, Script]:
         try:
             name = canonical_name(enemy)
         except KeyError:
-            raise ValueError(f"unknown enemy script {enemy!r} (known: {', '.join(SCRIPTS)})") from None
+            raise ValueError(
+                f"unknown enemy script {enemy!r} (known: {', '.join(SCRIPTS)})"
+            ) from None
         return name, get_script(name)
     if callable(enemy):
         return getattr(enemy, "__name__", "custom"), enemy

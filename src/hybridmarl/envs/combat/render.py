@@ -96,7 +96,6 @@ def render(
     ``facts`` is :func:`render_facts` of the env's rules."""
     from PIL import Image, ImageDraw, ImageFont
 
-
     g = jax.device_get(state.game)
     last = np.asarray(jax.device_get(state.last_actions))
     init_hp = np.asarray(jax.device_get(state.init_hp))
@@ -159,11 +158,7 @@ def render(
             bx, by = x - bw / 2, y - r - bh - 2
             draw.rectangle([bx, by, bx + bw, by + bh], fill=(20, 20, 20))
             colour = (
-                (70, 210, 70)
-                if frac > 0.5
-                else (235, 200, 40)
-                if frac > 0.25
-                else (230, 60, 50)
+                (70, 210, 70) if frac > 0.5 else (235, 200, 40) if frac > 0.25 else (230, 60, 50)
             )
             draw.rectangle([bx, by, bx + bw * frac, by + bh], fill=colour)
 

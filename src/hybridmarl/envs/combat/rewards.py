@@ -57,7 +57,9 @@ def damage_dealt(game: GameState, last0: jax.Array) -> jax.Array:
     target = jnp.clip(code - ATTACK_BASE, 0, n - 1)
     dmg = jnp.asarray(U.TABLES.damage)[game.utype[0], game.utype[1][target]]
     uid = game.uid[0]
-    earlier = (target[:, None] == target[None, :]) & is_attack[None, :] & (uid[None, :] < uid[:, None])
+    earlier = (
+        (target[:, None] == target[None, :]) & is_attack[None, :] & (uid[None, :] < uid[:, None])
+    )
     prior = jnp.sum(jnp.where(earlier, dmg[None, :], 0), axis=1)
     left = game.hp[1][target] - prior
     dealt = jnp.where(is_attack & (left > 0), jnp.minimum(dmg, left), 0)

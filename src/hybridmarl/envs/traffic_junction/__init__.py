@@ -147,7 +147,6 @@ Version history
 - v0: initial.
 """
 
-
 from hybridmarl.envs.traffic_junction.demonstrators import (
     DEMONSTRATORS,
     always_gas,

@@ -424,13 +424,17 @@ class TrafficJunction(LearningEnv[TJState, TJParams]):
 
         check_options(getattr(spec, "setting", None), p_arrive=float(spec.p_arrive))
         env = cls(num_agents=spec.num_cars)
-        params = env.default_params.replace(p_arrive=float(spec.p_arrive), time_penalty=bool(spec.time_penalty))
+        params = env.default_params.replace(
+            p_arrive=float(spec.p_arrive), time_penalty=bool(spec.time_penalty)
+        )
         return env, params
 
     @classmethod
     def spec_label(cls, spec: Any) -> str:
         setting = getattr(spec, "setting", "sparcraft")
-        extra = (", time penalty" if spec.time_penalty else "") + ("" if setting == "sparcraft" else f", {setting} setting")
+        extra = (", time penalty" if spec.time_penalty else "") + (
+            "" if setting == "sparcraft" else f", {setting} setting"
+        )
         return f"traffic_junction (p_arrive {spec.p_arrive:g}{extra})"
 
     @classmethod
@@ -479,9 +483,14 @@ class TrafficJunction(LearningEnv[TJState, TJParams]):
         slo, shi = wilson_interval(n - fails, n)
         r, rlo, rhi = t_interval(ep["return"])
         return dict(
-            failure_rate=fails / n, failure_rate_ci95=[lo, hi],
-            W=(n - fails) / n, W_ci95=[slo, shi], R=r, R_ci95=[rlo, rhi],
-            mean_arrivals=float(np.mean(ep["arrivals"])), mean_collisions=float(np.mean(ep["collisions"])),
+            failure_rate=fails / n,
+            failure_rate_ci95=[lo, hi],
+            W=(n - fails) / n,
+            W_ci95=[slo, shi],
+            R=r,
+            R_ci95=[rlo, rhi],
+            mean_arrivals=float(np.mean(ep["arrivals"])),
+            mean_collisions=float(np.mean(ep["collisions"])),
         )
 
     @classmethod
